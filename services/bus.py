@@ -1,0 +1,400 @@
+"""The bus substrate: zenoh session settings, and one typed bus endpoint per service.
+
+Endpoint convention (DESIGN.md section 2)
+-----------------------------------------
+Peer mode on loopback, multicast scouting OFF, explicit endpoints. One designated process, the
+*hub* (the launcher, or a Python process in router mode), listens on the rendezvous endpoint
+``tcp/127.0.0.1:7447`` (``DEFAULT_HUB``; a deployment picks another port in its ``[bus]``
+table). Every service ``connect``s to the hub and also listens on an ephemeral loopback port
+(``tcp/127.0.0.1:0``). Zenoh 1.x peers do not relay for each other, so the mesh is formed by gossip
+scouting (on by default): each peer learns the others' listening endpoints through the hub and
+connects to them directly. A service started before the hub keeps retrying its connect.
+``BusSettings.hub()`` turns a service's settings into the hub's. Client mode (services connect to a
+router, which relays) is the option for multi-host deployments.
+
+Keys are ``ddvi/<run>/<topic>``; liveliness tokens ``ddvi/<run>/alive/<service>``. Payloads are
+encoded and decoded only by ``services.schema``.
+
+Threading
+---------
+Zenoh calls subscriber callbacks on its own threads. ``Bus`` decodes, counts and link-models the
+message on that thread, then calls the handler there too, so a handler must be quick and thread
+safe: ``queue_handler(q)`` hands messages to the service's main loop through a ``queue.Queue``.
+Counters and sequence numbers are guarded by locks; nothing raised in a callback reaches zenoh.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import re
+import threading
+import time
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from services.links import LinkModel
+from services.schema import MAX_PAYLOAD, REASONS, Message, MessageError, decode, encode
+
+log = logging.getLogger("ddvi.bus")
+
+MODES = ("peer", "client", "router")
+DEFAULT_PORT = 7447
+DEFAULT_HUB = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+EPHEMERAL_LOOPBACK = "tcp/127.0.0.1:0"
+MSGPACK_ENCODING = "application/msgpack"
+
+_ENDPOINT = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+_LINK_COUNTERS = ("dropped", "duplicated", "reordered", "delayed")
+
+Handler = Callable[[str, Message], None]
+"""A subscription handler: ``handler(topic, message)``, topic relative to ``ddvi/<run>/``."""
+
+
+@dataclass
+class BusSettings:
+    """A deployment's ``[bus]`` table: zenoh mode and explicit endpoints.
+
+    Defaults are a service's side of the convention above: peer mode, listen on an ephemeral
+    loopback port, connect to ``DEFAULT_HUB``. Invalid values raise ValueError naming the key.
+    """
+
+    mode: str = "peer"
+    listen: list[str] = field(default_factory=lambda: [EPHEMERAL_LOOPBACK])
+    connect: list[str] = field(default_factory=lambda: [DEFAULT_HUB])
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"bus.mode: expected one of {'|'.join(MODES)}, got {self.mode!r}")
+        for key in ("listen", "connect"):
+            endpoints = getattr(self, key)
+            if isinstance(endpoints, str) or not isinstance(endpoints, list | tuple):
+                raise ValueError(f"bus.{key}: expected a list of endpoints, got {endpoints!r}")
+            for i, endpoint in enumerate(endpoints):
+                if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint):
+                    raise ValueError(
+                        f"bus.{key}[{i}]: expected an endpoint '<proto>/<address>', "
+                        f"got {endpoint!r}"
+                    )
+            setattr(self, key, list(endpoints))
+        if self.mode == "client" and not self.connect:
+            raise ValueError("bus.connect: client mode needs at least one router endpoint")
+        if self.mode in ("peer", "router") and not self.listen:
+            raise ValueError(
+                f"bus.listen: {self.mode} mode needs an endpoint to listen on "
+                f"(peers do not relay; use '{EPHEMERAL_LOOPBACK}' for an ephemeral port)"
+            )
+
+    @classmethod
+    def from_table(cls, table: Mapping[str, Any]) -> BusSettings:
+        """Build from a deployment's ``[bus]`` table; unknown keys raise ValueError."""
+        for key in table:
+            if key not in ("mode", "listen", "connect"):
+                raise ValueError(f"bus.{key}: unknown key; expected mode, listen or connect")
+        return cls(**table)
+
+    def hub(self, mode: str = "peer") -> BusSettings:
+        """Settings for the one process that listens where every service connects."""
+        return BusSettings(mode=mode, listen=list(self.connect), connect=[])
+
+
+def zenoh_config(settings: BusSettings) -> zenoh.Config:
+    """The zenoh configuration for ``settings``: explicit endpoints, no multicast scouting."""
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(settings.mode))
+    config.insert_json5("listen/endpoints", json.dumps(settings.listen))
+    config.insert_json5("connect/endpoints", json.dumps(settings.connect))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "true")
+    # Retry a not-yet-listening hub quickly, so start-up order does not matter.
+    retry = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2.0}
+    config.insert_json5("connect/retry", json.dumps(retry))
+    return config
+
+
+@contextmanager
+def open_session(settings: BusSettings) -> Iterator[zenoh.Session]:
+    """Open a zenoh session and always close it (an open session can hang interpreter exit)."""
+    session = zenoh.open(zenoh_config(settings))
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def queue_handler(q: queue.Queue[tuple[str, Message]]) -> Handler:
+    """A handler that puts ``(topic, message)`` on ``q`` for the service's main loop.
+
+    Use an unbounded queue: a full bounded queue raises into the bus, which counts it as a
+    handler error and loses the message.
+    """
+
+    def handler(topic: str, message: Message) -> None:
+        q.put_nowait((topic, message))
+
+    return handler
+
+
+def check_name(what: str, name: str) -> str:
+    """Validate a run or service name (one key-expression chunk, no wildcards)."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ValueError(f"{what}: expected [A-Za-z0-9_.-]+ (no '/'), got {name!r}")
+    return name
+
+
+def _check_topic(topic: str) -> str:
+    if (
+        not isinstance(topic, str)
+        or not topic
+        or any(c in topic for c in "*$?#")
+        or "//" in topic
+        or topic[0] == "/"
+        or topic[-1] == "/"
+    ):
+        raise ValueError(f"topic: expected a/b/c without wildcards, got {topic!r}")
+    return topic
+
+
+@dataclass
+class _Route:
+    """One subscription: its handler, schema filter and optional link model."""
+
+    handler: Handler
+    expected: str | Collection[str] | None
+    link: LinkModel | None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    subscriber: Any = None
+
+
+class Bus:
+    """One service's endpoint on one session: typed publish/subscribe, liveliness, counters.
+
+    ``Bus(session, run, service)``; the session is owned by the caller (see ``open_session``),
+    ``close()`` undeclares what this Bus declared. Usable as a context manager.
+    """
+
+    def __init__(self, session: zenoh.Session, run: str, service: str) -> None:
+        self.session = session
+        self.run = check_name("run", run)
+        self.service = check_name("service", service)
+        self.prefix = f"ddvi/{run}/"
+        self._pub_lock = threading.RLock()  # seq counters and publishers
+        self._count_lock = threading.Lock()  # counters only; never held while calling out
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._seq: dict[str, int] = {}
+        self._routes: list[_Route] = []
+        self._token: zenoh.LivelinessToken | None = None
+        self._sim_time = 0.0
+        self._closed = False
+        self._counts: dict[str, int] = dict.fromkeys(
+            ["sent", "received", "delivered", "rejected", "handler_errors"], 0
+        )
+        self._counts.update({f"rejected.{r}": 0 for r in sorted(REASONS)})
+
+    # -- counters ---------------------------------------------------------------------------
+
+    def _count(self, key: str, n: int = 1) -> int:
+        with self._count_lock:
+            self._counts[key] += n
+            return self._counts[key]
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Snapshot: sent, received, delivered, rejected, rejected.<reason>, handler_errors, and
+        the link-model totals dropped, duplicated, reordered, delayed. A flat str->int map, ready
+        for a ``stats`` message."""
+        with self._count_lock:
+            out = dict(self._counts)
+        out.update(dict.fromkeys(_LINK_COUNTERS, 0))
+        for route in list(self._routes):
+            if route.link is not None:
+                with route.lock:
+                    for key, value in route.link.counters.items():
+                        out[key] += value
+        return out
+
+    # -- publishing -------------------------------------------------------------------------
+
+    def publish(self, topic: str, schema: str, body: Mapping[str, Any], t: float) -> int:
+        """Encode and put ``body`` on ``ddvi/<run>/<topic>``; return the seq used.
+
+        ``seq`` counts per topic from 0. Raises MessageError if the body does not fit its
+        schema (nothing is sent and the seq is not consumed).
+        """
+        _check_topic(topic)
+        with self._pub_lock:
+            if self._closed:
+                raise RuntimeError(f"bus of {self.service} is closed")
+            seq = self._seq.get(topic, 0)
+            payload = encode(schema, body, seq=seq, t=t, src=self.service)
+            publisher = self._publishers.get(topic)
+            if publisher is None:
+                publisher = self.session.declare_publisher(
+                    self.prefix + topic,
+                    encoding=zenoh.Encoding(MSGPACK_ENCODING),
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                )
+                self._publishers[topic] = publisher
+            self._seq[topic] = seq + 1
+            publisher.put(payload)
+        self._count("sent")
+        return seq
+
+    # -- subscribing ------------------------------------------------------------------------
+
+    def subscribe(
+        self,
+        topic_pattern: str,
+        handler: Handler,
+        expected_schema: str | Collection[str] | None = None,
+        link: LinkModel | None = None,
+    ) -> None:
+        """Subscribe to ``ddvi/<run>/<topic_pattern>`` (zenoh wildcards allowed).
+
+        Each sample is decoded and validated (rejects are counted by reason and logged), then
+        passed through ``link`` if given, then handed to ``handler(topic, message)``. Items held
+        by the link are delivered by ``pump``.
+        """
+        if self._closed:
+            raise RuntimeError(f"bus of {self.service} is closed")
+        route = _Route(handler, expected_schema, link)
+        route.subscriber = self.session.declare_subscriber(
+            self.prefix + topic_pattern, lambda sample: self._on_sample(route, sample)
+        )
+        self._routes.append(route)
+
+    def _now(self, link: LinkModel) -> float:
+        return time.monotonic() if link.clock == "wall" else self._sim_time
+
+    def _on_sample(self, route: _Route, sample: zenoh.Sample) -> None:
+        """Zenoh callback: must never raise."""
+        try:
+            key = str(sample.key_expr)
+            topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+            try:
+                size = len(sample.payload)
+                if size > MAX_PAYLOAD:
+                    raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
+                message = decode(sample.payload.to_bytes(), route.expected)
+            except MessageError as err:
+                with self._count_lock:
+                    self._counts["rejected"] += 1
+                    self._counts[f"rejected.{err.reason}"] += 1
+                    n = self._counts[f"rejected.{err.reason}"]
+                if n <= 10 or n % 1000 == 0:
+                    log.warning(
+                        "%s: rejected %s (%s, #%d): %s", self.service, key, err.reason, n, err
+                    )
+                return
+            self._count("received")
+            if route.link is None:
+                items = [(topic, message)]
+            else:
+                with route.lock:
+                    items = route.link.offer((topic, message), self._now(route.link))
+            self._deliver(route, items)
+        except Exception:
+            self._count("handler_errors")
+            log.exception("%s: error in bus callback", self.service)
+
+    def _deliver(self, route: _Route, items: Iterable[tuple[str, Message]]) -> int:
+        delivered = 0
+        for topic, message in items:
+            try:
+                route.handler(topic, message)
+                delivered += 1
+            except Exception:
+                self._count("handler_errors")
+                log.exception("%s: handler failed on %s", self.service, topic)
+        self._count("delivered", delivered)
+        return delivered
+
+    def pump(self, sim_time: float | None = None) -> int:
+        """Advance the receiver's simulation clock (if given) and deliver held items now due.
+
+        Call from the main loop: sim-clock links release against the latest ``sim_time``,
+        wall-clock links against ``time.monotonic()``. Returns how many items were delivered.
+        """
+        if sim_time is not None:
+            self._sim_time = float(sim_time)
+        if self._closed:
+            return 0
+        delivered = 0
+        for route in list(self._routes):
+            if route.link is not None:
+                with route.lock:
+                    items = route.link.release(self._now(route.link))
+                delivered += self._deliver(route, items)
+        return delivered
+
+    @property
+    def sim_time(self) -> float:
+        """The receiver's simulation time as last given to ``pump``."""
+        return self._sim_time
+
+    # -- liveliness and teardown ------------------------------------------------------------
+
+    def declare_alive(self) -> None:
+        """Declare the liveliness token ``ddvi/<run>/alive/<service>`` (idempotent)."""
+        if self._token is None:
+            key = f"{self.prefix}alive/{self.service}"
+            self._token = self.session.liveliness().declare_token(key)
+
+    def close(self) -> None:
+        """Undeclare subscribers, publishers and the liveliness token (idempotent)."""
+        with self._pub_lock:
+            if self._closed:
+                return
+            self._closed = True
+            publishers, token = self._publishers, self._token
+            self._publishers, self._token = {}, None
+        # Undeclare outside the lock: a callback in flight may be publishing. Routes stay, so
+        # their link counters remain readable after close.
+        for route in self._routes:
+            route.subscriber.undeclare()
+        for publisher in publishers.values():
+            publisher.undeclare()
+        if token is not None:
+            token.undeclare()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+def wait_for_alive(
+    session: zenoh.Session, run: str, services: Iterable[str], timeout: float
+) -> set[str]:
+    """Wait until every named service's liveliness token is seen or ``timeout`` s pass.
+
+    Returns the subset of ``services`` alive at return time.
+    """
+    wanted = set(services)
+    prefix = f"ddvi/{check_name('run', run)}/alive/"
+    alive: set[str] = set()
+    changed = threading.Condition()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr)[len(prefix) :]
+        with changed:
+            if sample.kind == zenoh.SampleKind.PUT:
+                alive.add(name)
+            else:
+                alive.discard(name)
+            changed.notify_all()
+
+    subscriber = session.liveliness().declare_subscriber(prefix + "*", on_sample, history=True)
+    try:
+        with changed:
+            changed.wait_for(lambda: wanted <= alive, timeout)
+            return wanted & alive
+    finally:
+        subscriber.undeclare()

@@ -1,0 +1,434 @@
+"""Every message type of the system, and the only encoder/decoder of bus payloads.
+
+Wire format (DESIGN.md section 2): a msgpack map
+
+    {"schema": str, "version": int, "seq": int, "t": float, "src": str, "body": {...}}
+
+``t`` is simulation time in seconds and ``src`` the publishing service. Bodies hold only plain
+msgpack values: ints, floats, bools, strings, maps with string keys, and (nested) lists of floats
+for arrays. No ext types and no numpy, so any zenoh subscriber in any language decodes a payload
+with a plain msgpack library.
+
+Inputs/outputs:
+    encode(schema, body, *, seq, t, src) -> bytes    validates, then packs
+    decode(payload, expected=None) -> Message        unpacks (bounded), then validates
+    Both raise MessageError, whose ``reason`` is one of REASONS.
+
+The schema table ``SCHEMAS`` is data: one ``Schema`` per message type, each a mapping of field
+name to a field kind (``Int``, ``Float``, ``Bool``, ``Str``, ``Array``, ``IntMap``,
+``ScalarMap``). Array fields travel as nested lists and come back from ``decode`` as float64
+numpy arrays of the declared shape (``None`` = any length). This module has no state.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import numbers
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+import numpy as np
+
+MAX_PAYLOAD = 64 * 1024
+"""Largest accepted payload in bytes, checked before unpacking and after packing."""
+
+REASONS = frozenset(
+    {
+        "oversized",
+        "malformed",
+        "bad_header",
+        "unknown_schema",
+        "wrong_schema",
+        "version",
+        "bad_field",
+        "non_finite",
+    }
+)
+"""Every value ``MessageError.reason`` can take."""
+
+HEADER_KEYS = ("schema", "version", "seq", "t", "src", "body")
+
+
+class MessageError(ValueError):
+    """A payload or body that does not conform to its schema.
+
+    ``reason`` is a short code from ``REASONS`` (for counters); ``str(err)`` names the schema,
+    the field, what was expected and what was found.
+    """
+
+    def __init__(self, reason: str, text: str) -> None:
+        if reason not in REASONS:
+            raise ValueError(f"unknown MessageError reason {reason!r}")
+        super().__init__(text)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Message:
+    """One decoded, validated message. Array fields of ``body`` are float64 numpy arrays."""
+
+    schema: str
+    version: int
+    seq: int
+    t: float
+    src: str
+    body: dict[str, Any]
+
+
+# ---------------------------------------------------------------------------------------------
+# Field kinds. Each ``check(where, value)`` returns the normalised value (Python scalars, numpy
+# arrays) or raises MessageError; ``where`` is "schema.field" for the error text.
+
+
+def _type_name(value: object) -> str:
+    return type(value).__name__
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+
+
+@dataclass(frozen=True)
+class Int:
+    """An integer (bools are not integers here)."""
+
+    def check(self, where: str, value: object) -> int:
+        if not _is_int(value):
+            raise MessageError("bad_field", f"{where}: expected int, got {_type_name(value)}")
+        return int(value)  # type: ignore[call-overload]
+
+
+@dataclass(frozen=True)
+class Float:
+    """A finite float; ints are accepted and converted."""
+
+    def check(self, where: str, value: object) -> float:
+        if not _is_real(value):
+            raise MessageError("bad_field", f"{where}: expected float, got {_type_name(value)}")
+        try:
+            result = float(value)  # type: ignore[arg-type]
+        except OverflowError:
+            result = math.inf
+        if not math.isfinite(result):
+            raise MessageError("non_finite", f"{where}: expected a finite float, got {result}")
+        return result
+
+
+@dataclass(frozen=True)
+class Bool:
+    """A boolean."""
+
+    def check(self, where: str, value: object) -> bool:
+        if not isinstance(value, bool | np.bool_):
+            raise MessageError("bad_field", f"{where}: expected bool, got {_type_name(value)}")
+        return bool(value)
+
+
+@dataclass(frozen=True)
+class Str:
+    """A string, optionally restricted to ``choices``."""
+
+    choices: tuple[str, ...] | None = None
+
+    def check(self, where: str, value: object) -> str:
+        if not isinstance(value, str):
+            raise MessageError("bad_field", f"{where}: expected str, got {_type_name(value)}")
+        if self.choices is not None and value not in self.choices:
+            options = "|".join(self.choices)
+            raise MessageError("bad_field", f"{where}: expected one of {options}, got {value!r}")
+        return value
+
+
+@dataclass(frozen=True)
+class Array:
+    """A float array of the given shape; a ``None`` dimension accepts any length."""
+
+    shape: tuple[int | None, ...]
+
+    def describe(self) -> str:
+        if len(self.shape) == 1:
+            n = self.shape[0]
+            return "a list of finite floats" if n is None else f"{n} finite floats"
+        dims = "x".join("N" if d is None else str(d) for d in self.shape)
+        return f"a {dims} nested list of finite floats"
+
+    def check(self, where: str, value: object) -> np.ndarray:
+        expected = f"{where}: expected {self.describe()}"
+        if not isinstance(value, list | tuple | np.ndarray):
+            raise MessageError("bad_field", f"{expected}, got {_type_name(value)}")
+        try:
+            arr = np.asarray(value)
+        except (ValueError, TypeError, OverflowError) as exc:
+            raise MessageError("bad_field", f"{expected}, got a ragged or mixed list") from exc
+        if arr.size == 0 and arr.ndim == 1 and len(self.shape) > 1:
+            # An empty nested list carries no inner dimensions: rebuild them from the spec.
+            arr = np.empty((0, *(d or 0 for d in self.shape[1:])))
+        if arr.dtype.kind not in "fiu":
+            raise MessageError("bad_field", f"{expected}, got elements of type {arr.dtype}")
+        if len(self.shape) == 1 and arr.ndim == 1 and self.shape[0] is not None:
+            if arr.shape[0] != self.shape[0]:
+                raise MessageError("bad_field", f"{expected}, got {arr.shape[0]}")
+        elif arr.ndim != len(self.shape) or any(
+            d is not None and d != n for d, n in zip(self.shape, arr.shape, strict=True)
+        ):
+            raise MessageError("bad_field", f"{expected}, got shape {arr.shape}")
+        out = arr.astype(np.float64)
+        if not np.all(np.isfinite(out)):
+            bad = np.argwhere(~np.isfinite(out))[0]
+            index = tuple(int(i) for i in bad)
+            shown = index[0] if len(index) == 1 else index
+            raise MessageError("non_finite", f"{expected}, got {out[index]} at index {shown}")
+        return out
+
+
+@dataclass(frozen=True)
+class IntMap:
+    """A map of string keys to ints (counters)."""
+
+    def check(self, where: str, value: object) -> dict[str, int]:
+        if not isinstance(value, Mapping):
+            raise MessageError(
+                "bad_field", f"{where}: expected map str->int, got {_type_name(value)}"
+            )
+        out: dict[str, int] = {}
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise MessageError(
+                    "bad_field", f"{where}: expected str keys, got {_type_name(key)}"
+                )
+            out[key] = Int().check(f"{where}[{key!r}]", item)
+        return out
+
+
+@dataclass(frozen=True)
+class ScalarMap:
+    """A map of string keys to scalars: float (finite), int, str or bool."""
+
+    def check(self, where: str, value: object) -> dict[str, float | int | str | bool]:
+        if not isinstance(value, Mapping):
+            raise MessageError("bad_field", f"{where}: expected map, got {_type_name(value)}")
+        out: dict[str, float | int | str | bool] = {}
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise MessageError(
+                    "bad_field", f"{where}: expected str keys, got {_type_name(key)}"
+                )
+            inner = f"{where}[{key!r}]"
+            if isinstance(item, bool | np.bool_):
+                out[key] = bool(item)
+            elif _is_int(item):
+                out[key] = int(item)  # type: ignore[call-overload]
+            elif isinstance(item, str):
+                out[key] = item
+            elif _is_real(item):
+                out[key] = Float().check(inner, item)
+            else:
+                raise MessageError(
+                    "bad_field", f"{inner}: expected float|int|str|bool, got {_type_name(item)}"
+                )
+        return out
+
+
+Field = Int | Float | Bool | Str | Array | IntMap | ScalarMap
+
+
+@dataclass(frozen=True)
+class Schema:
+    """One message type: its name, version and body fields (all required, no extras)."""
+
+    name: str
+    version: int
+    fields: Mapping[str, Field]
+
+
+def _schemas(*items: Schema) -> dict[str, Schema]:
+    return {s.name: s for s in items}
+
+
+SCHEMAS: Mapping[str, Schema] = _schemas(
+    Schema(
+        "clock",
+        1,
+        {
+            "step": Int(),
+            "dt": Float(),
+            "fsw": Bool(),
+            "mode": Str(("lockstep", "realtime")),
+            "final": Bool(),
+        },
+    ),
+    Schema(
+        "truth",
+        1,
+        {"sc": Str(), "r_N": Array((3,)), "v_N": Array((3,)), "sigma_BN": Array((3,))},
+    ),
+    Schema("exo", 1, {"v": Array((None,)), "phase": Float()}),
+    Schema("nav", 1, {"sc": Str(), "x_hill": Array((6,)), "valid": Bool()}),
+    Schema("cmd", 1, {"sc": Str(), "sigma": Array((3,)), "for_t": Float()}),
+    Schema(
+        "gains",
+        1,
+        {
+            "sc": Str(),
+            "K": Array((None, None)),
+            "L": Array((None, None)),
+            "source": Str(("initial", "lqr", "ddvi")),
+            "iteration": Int(),
+            "converged": Bool(),
+        },
+    ),
+    Schema(
+        "status",
+        1,
+        {
+            "sc": Str(),
+            "mode": Str(),
+            "phase": Str(),
+            "samples": Int(),
+            "intervals": Int(),
+            "rank": Int(),
+            "rank_needed": Int(),
+            "counters": IntMap(),
+        },
+    ),
+    Schema("fault", 1, {"kind": Str(), "target": Str(), "params": ScalarMap()}),
+    Schema("stats", 1, {"service": Str(), "counters": IntMap()}),
+    Schema("log", 1, {"service": Str(), "level": Str(), "text": Str()}),
+)
+"""Every message type of the system, by name."""
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _lookup(name: object) -> Schema:
+    if not isinstance(name, str) or name not in SCHEMAS:
+        raise MessageError(
+            "unknown_schema", f"unknown schema {name!r}; known: {', '.join(sorted(SCHEMAS))}"
+        )
+    return SCHEMAS[name]
+
+
+def check_body(schema: str, body: Mapping[str, Any]) -> dict[str, Any]:
+    """Validate ``body`` against ``schema``; return it normalised (arrays as float64 ndarrays)."""
+    spec = _lookup(schema)
+    if not isinstance(body, Mapping):
+        raise MessageError("bad_field", f"{schema}: expected body map, got {_type_name(body)}")
+    for key in body:
+        if key not in spec.fields:
+            near = difflib.get_close_matches(str(key), list(spec.fields), n=1)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            raise MessageError("bad_field", f"{schema}.{key}: unknown field{hint}")
+    out: dict[str, Any] = {}
+    for name, field in spec.fields.items():
+        if name not in body:
+            raise MessageError("bad_field", f"{schema}.{name}: missing field")
+        out[name] = field.check(f"{schema}.{name}", body[name])
+    return out
+
+
+def _to_wire(value: Any) -> Any:
+    return value.tolist() if isinstance(value, np.ndarray) else value
+
+
+def _check_header(schema: str, seq: object, t: object, src: object) -> tuple[int, float, str]:
+    if not _is_int(seq) or int(seq) < 0:  # type: ignore[call-overload]
+        raise MessageError("bad_header", f"{schema} header.seq: expected int >= 0, got {seq!r}")
+    if not _is_real(t):
+        raise MessageError("bad_header", f"{schema} header.t: expected float, got {_type_name(t)}")
+    t_f = Float().check(f"{schema} header.t", t)
+    if not isinstance(src, str) or not src:
+        raise MessageError(
+            "bad_header", f"{schema} header.src: expected non-empty str, got {src!r}"
+        )
+    return int(seq), t_f, src  # type: ignore[call-overload]
+
+
+def encode(schema: str, body: Mapping[str, Any], *, seq: int, t: float, src: str) -> bytes:
+    """Validate ``body`` against ``schema`` and pack the full message.
+
+    Numpy arrays and numpy scalars are accepted and converted to plain lists/floats.
+    Raises MessageError (``unknown_schema``, ``bad_field``, ``non_finite``, ``bad_header``,
+    ``oversized``).
+    """
+    spec = _lookup(schema)
+    seq_i, t_f, src_s = _check_header(schema, seq, t, src)
+    clean = check_body(schema, body)
+    payload = msgpack.packb(
+        {
+            "schema": schema,
+            "version": spec.version,
+            "seq": seq_i,
+            "t": t_f,
+            "src": src_s,
+            "body": {k: _to_wire(v) for k, v in clean.items()},
+        },
+        use_bin_type=True,
+    )
+    if len(payload) > MAX_PAYLOAD:
+        raise MessageError(
+            "oversized", f"{schema}: encoded size {len(payload)} B exceeds {MAX_PAYLOAD} B"
+        )
+    return payload
+
+
+def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Message:
+    """Unpack and validate a payload; ``expected`` restricts the accepted schema name(s).
+
+    Never raises anything but MessageError for any input bytes.
+    """
+    size = len(payload)
+    if size > MAX_PAYLOAD:
+        raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
+    try:
+        raw = msgpack.unpackb(
+            payload,
+            raw=False,
+            use_list=True,
+            strict_map_key=True,
+            max_str_len=size,
+            max_bin_len=0,
+            max_array_len=size,
+            max_map_len=size,
+            max_ext_len=0,
+        )
+    except Exception as exc:  # any unpack failure of untrusted bytes is "malformed"
+        raise MessageError("malformed", f"not a msgpack message: {exc}") from exc
+    if not isinstance(raw, dict):
+        raise MessageError("malformed", f"expected a msgpack map, got {_type_name(raw)}")
+    keys = set(raw)
+    if keys != set(HEADER_KEYS):
+        missing = sorted(set(HEADER_KEYS) - keys)
+        extra = sorted(str(k) for k in keys - set(HEADER_KEYS))
+        raise MessageError("bad_header", f"header: missing {missing}, unexpected {extra}")
+    name = raw["schema"]
+    if not isinstance(name, str):
+        raise MessageError("bad_header", f"header.schema: expected str, got {_type_name(name)}")
+    spec = _lookup(name)
+    if expected is not None:
+        allowed = {expected} if isinstance(expected, str) else set(expected)
+        if name not in allowed:
+            raise MessageError(
+                "wrong_schema", f"expected schema {'|'.join(sorted(allowed))}, got {name!r}"
+            )
+    version = raw["version"]
+    if not _is_int(version):
+        raise MessageError(
+            "bad_header", f"{name} header.version: expected int, got {_type_name(version)}"
+        )
+    if version != spec.version:
+        raise MessageError("version", f"{name}: expected version {spec.version}, got {version}")
+    seq, t, src = _check_header(name, raw["seq"], raw["t"], raw["src"])
+    body = raw["body"]
+    if not isinstance(body, dict):
+        raise MessageError(
+            "bad_header", f"{name} header.body: expected map, got {_type_name(body)}"
+        )
+    return Message(name, version, seq, t, src, check_body(name, body))

@@ -1,0 +1,239 @@
+"""services.bus: settings, and two real zenoh peer sessions on loopback in one process."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import queue
+import socket
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+
+from services.bus import (
+    DEFAULT_HUB,
+    EPHEMERAL_LOOPBACK,
+    Bus,
+    BusSettings,
+    open_session,
+    queue_handler,
+    wait_for_alive,
+    zenoh_config,
+)
+from services.links import LinkModel, LinkSpec
+from services.schema import MAX_PAYLOAD, Message, MessageError, encode
+
+TIMEOUT = 5.0
+_runs = itertools.count()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = TIMEOUT) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def nav_body(x: float = 0.0) -> dict[str, Any]:
+    return {"sc": "deputy1", "x_hill": np.full(6, x), "valid": True}
+
+
+Inbox = queue.Queue[tuple[str, Message]]
+
+
+@pytest.fixture(scope="module")
+def sessions() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    """A hub peer listening on a free port and a service peer connecting to it."""
+    hub_endpoint = f"tcp/127.0.0.1:{free_port()}"
+    service = BusSettings(listen=[EPHEMERAL_LOOPBACK], connect=[hub_endpoint])
+    with open_session(service.hub()) as hub, open_session(service) as svc:
+        assert wait_until(lambda: len(list(svc.info.peers_zid())) == 1)
+        yield hub, svc
+    assert hub.is_closed() and svc.is_closed()
+
+
+@pytest.fixture
+def run() -> str:
+    return f"test{next(_runs)}"
+
+
+def connect(tx: Bus, inbox: Inbox, topic: str) -> None:
+    """Publish probes until the subscription has propagated, then empty the inbox."""
+    assert wait_until(lambda: tx.publish(topic, "nav", nav_body(), 0.0) >= 0 and not inbox.empty())
+    time.sleep(0.05)
+    while not inbox.empty():
+        inbox.get_nowait()
+
+
+# --- settings -------------------------------------------------------------------------------
+
+
+def test_default_settings_follow_the_convention() -> None:
+    s = BusSettings()
+    assert (s.mode, s.listen, s.connect) == ("peer", [EPHEMERAL_LOOPBACK], [DEFAULT_HUB])
+    assert s.hub() == BusSettings(mode="peer", listen=[DEFAULT_HUB], connect=[])
+    config = zenoh_config(s)
+    assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(config.get_json("connect/endpoints")) == [DEFAULT_HUB]
+    assert json.loads(config.get_json("mode")) == "peer"
+
+
+@pytest.mark.parametrize(
+    ("table", "key"),
+    [
+        ({"mode": "broker"}, "bus.mode"),
+        ({"listen": ["localhost:7447"]}, r"bus.listen\[0\]"),
+        ({"connect": "tcp/127.0.0.1:7447"}, "bus.connect"),
+        ({"connect": ["tcp/127.0.0.1:7447", 5]}, r"bus.connect\[1\]"),
+        ({"mode": "client", "connect": []}, "bus.connect"),
+        ({"mode": "peer", "listen": []}, "bus.listen"),
+        ({"conect": []}, "bus.conect"),
+    ],
+)
+def test_settings_validation_names_the_key(table: dict[str, Any], key: str) -> None:
+    with pytest.raises(ValueError, match=rf"^{key}:"):
+        BusSettings.from_table(table)
+
+
+def test_names_are_checked(sessions: tuple[zenoh.Session, zenoh.Session]) -> None:
+    hub, _ = sessions
+    with pytest.raises(ValueError, match="service"):
+        Bus(hub, "run", "nav/deputy1")
+    with pytest.raises(ValueError, match="run"):
+        Bus(hub, "r*", "nav")
+
+
+# --- two live sessions ----------------------------------------------------------------------
+
+
+def test_published_message_arrives_decoded(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    with Bus(hub, run, "monitor") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("nav/*/state", queue_handler(inbox), expected_schema="nav")
+        connect(tx, inbox, "nav/deputy1/state")
+        first = tx.publish("nav/deputy1/state", "nav", nav_body(1.5), t=60.0)
+        second = tx.publish("nav/deputy1/state", "nav", nav_body(2.5), t=120.0)
+        assert second == first + 1
+        topic, msg = inbox.get(timeout=TIMEOUT)
+        assert topic == "nav/deputy1/state"
+        assert (msg.schema, msg.seq, msg.t, msg.src) == ("nav", first, 60.0, "nav-deputy1")
+        np.testing.assert_array_equal(msg.body["x_hill"], np.full(6, 1.5))
+        assert inbox.get(timeout=TIMEOUT)[1].seq == second
+        assert tx.publish("nav/deputy2/state", "nav", nav_body(), t=0.0) == 0  # per-topic seq
+        assert inbox.get(timeout=TIMEOUT)[0] == "nav/deputy2/state"
+        assert tx.counters["sent"] >= 3
+        assert rx.counters["received"] == rx.counters["delivered"] >= 3
+
+
+def test_garbage_is_rejected_counted_and_subscriber_survives(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    key = f"ddvi/{run}/nav/deputy1/state"
+    with Bus(hub, run, "monitor") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("nav/*/state", queue_handler(inbox), expected_schema="nav")
+        connect(tx, inbox, "nav/deputy1/state")
+        before = rx.counters
+        cmd = {"sc": "deputy1", "sigma": [0.0, 0.0, 0.1], "for_t": 0.0}
+        garbage = [
+            b"\xc1\xc1 not msgpack",
+            b"\x00" * (MAX_PAYLOAD + 1),
+            encode("cmd", cmd, seq=0, t=0.0, src="intruder"),
+        ]
+        for payload in garbage:  # BLOCK: the default (DROP) may drop after the large one
+            svc.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        tx.publish("nav/deputy1/state", "nav", nav_body(3.0), t=1.0)
+        _, msg = inbox.get(timeout=TIMEOUT)
+        np.testing.assert_array_equal(msg.body["x_hill"], np.full(6, 3.0))
+        assert wait_until(lambda: rx.counters["rejected"] - before["rejected"] == 3)
+        after = rx.counters
+        for reason in ("malformed", "oversized", "wrong_schema"):
+            assert after[f"rejected.{reason}"] - before[f"rejected.{reason}"] == 1
+        assert after["rejected"] - before["rejected"] == 3
+        assert inbox.empty()
+
+
+def test_handler_errors_are_contained(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    forward = queue_handler(inbox)
+
+    def flaky(topic: str, msg: Message) -> None:
+        if msg.t < 0:
+            raise RuntimeError("handler bug")
+        forward(topic, msg)
+
+    with Bus(hub, run, "controller") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("nav/**", flaky)
+        connect(tx, inbox, "nav/deputy1/state")
+        tx.publish("nav/deputy1/state", "nav", nav_body(), t=-1.0)
+        tx.publish("nav/deputy1/state", "nav", nav_body(), t=2.0)
+        assert inbox.get(timeout=TIMEOUT)[1].t == 2.0
+        assert rx.counters["handler_errors"] == 1
+
+
+def test_link_model_holds_until_receiver_sim_time(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    hub, svc = sessions
+    probe: Inbox = queue.Queue()
+    inbox: Inbox = queue.Queue()
+    with Bus(hub, run, "controller") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("probe", queue_handler(probe))
+        link = LinkModel(LinkSpec(delay=10.0), seed=1, clock="sim")
+        rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav", link=link)
+        connect(tx, probe, "probe")
+        tx.publish("nav/deputy1/state", "nav", nav_body(), t=0.0)
+        assert wait_until(lambda: rx.counters["delayed"] == 1)
+        assert inbox.empty()
+        assert rx.pump(sim_time=9.0) == 0
+        assert rx.pump(sim_time=10.0) == 1
+        assert inbox.get_nowait()[1].schema == "nav"
+
+
+def test_liveliness(sessions: tuple[zenoh.Session, zenoh.Session], run: str) -> None:
+    hub, svc = sessions
+    tx = Bus(svc, run, "nav-deputy1")
+    try:
+        tx.declare_alive()
+        assert wait_for_alive(hub, run, ["nav-deputy1"], TIMEOUT) == {"nav-deputy1"}
+        assert wait_for_alive(hub, run, ["nav-deputy1", "ghost"], 0.2) == {"nav-deputy1"}
+    finally:
+        tx.close()
+    assert wait_until(lambda: wait_for_alive(hub, run, ["nav-deputy1"], 0.05) == set())
+
+
+def test_publish_validates_and_closed_bus_refuses(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    _, svc = sessions
+    tx = Bus(svc, run, "nav-deputy1")
+    with pytest.raises(MessageError) as info:
+        tx.publish("nav/deputy1/state", "nav", {"sc": "deputy1"}, t=0.0)
+    assert info.value.reason == "bad_field"
+    assert tx.publish("nav/deputy1/state", "nav", nav_body(), t=0.0) == 0  # seq not consumed
+    with pytest.raises(ValueError, match="topic"):
+        tx.publish("nav/*/state", "nav", nav_body(), t=0.0)
+    tx.close()
+    tx.close()  # idempotent
+    with pytest.raises(RuntimeError, match="closed"):
+        tx.publish("nav/deputy1/state", "nav", nav_body(), t=0.0)
+    assert tx.counters["sent"] == 1
