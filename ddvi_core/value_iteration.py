@@ -1,0 +1,277 @@
+"""Value iteration for the continuous-time Riccati equation (the paper's Algorithm 1), with the
+time/state/cost scaling that makes it converge on orbital problems.
+
+Value iteration is forward Euler on dP/dtau = A^T P + P A + Q - P B R^-1 B^T P with steps
+eps_k.  Its speed is set by the slowest closed-loop rate measured in the iteration's time unit,
+so the problem is first rescaled (DESIGN.md sections 6 and 7):
+
+    tau = w0 t,   x = S x_s,   u = s_u u_s,   cost multiplied by c
+    A_s = S^-1 A S / w0,  B_s = S^-1 B s_u / w0,  Q_s = c S Q S / w0,  R_s = c s_u R s_u / w0
+    P = S^-1 P_s S^-1 / c,  K = s_u K_s S^-1
+
+The same loop serves the model-based iteration here and the data-driven one in
+:mod:`ddvi_core.learning`; only the map P -> (A^T P + P A, R^-1 B^T P) differs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "BoundSchedule",
+    "Scaling",
+    "StepSequence",
+    "VIResult",
+    "balanced_scaling",
+    "value_iteration",
+    "value_iteration_loop",
+]
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """Units of the iteration: time unit w0 (1/s), state scales S (n,), input scales s_u (m,),
+    cost factor c.  ``Scaling.identity(n, m)`` iterates in the problem's own units."""
+
+    time_unit: float
+    state_scale: NDArray[np.float64]
+    input_scale: NDArray[np.float64]
+    cost_scale: float
+
+    @staticmethod
+    def identity(n: int, m: int) -> Scaling:
+        return Scaling(1.0, np.ones(n), np.ones(m), 1.0)
+
+    def __post_init__(self) -> None:
+        if not (self.time_unit > 0 and math.isfinite(self.time_unit)):
+            raise ValueError(f"time_unit must be positive and finite, got {self.time_unit}")
+        if not (self.cost_scale > 0 and math.isfinite(self.cost_scale)):
+            raise ValueError(f"cost_scale must be positive and finite, got {self.cost_scale}")
+        for name in ("state_scale", "input_scale"):
+            s = np.asarray(getattr(self, name), dtype=float)
+            if s.ndim != 1 or not np.all(np.isfinite(s)) or np.any(s <= 0):
+                raise ValueError(f"{name} must be a vector of positive finite numbers")
+            object.__setattr__(self, name, s)
+
+    def dynamics(self, A: NDArray, B: NDArray) -> tuple[NDArray, NDArray]:
+        S, su, w0 = self.state_scale, self.input_scale, self.time_unit
+        return A * S[None, :] / S[:, None] / w0, B * su[None, :] / S[:, None] / w0
+
+    def weights(self, Q: NDArray, R: NDArray) -> tuple[NDArray, NDArray]:
+        S, su, c, w0 = self.state_scale, self.input_scale, self.cost_scale, self.time_unit
+        return c * Q * np.outer(S, S) / w0, c * R * np.outer(su, su) / w0
+
+    def unscale_P(self, P_s: NDArray) -> NDArray:
+        S = self.state_scale
+        return P_s / np.outer(S, S) / self.cost_scale
+
+    def scale_P(self, P: NDArray) -> NDArray:
+        S = self.state_scale
+        return P * np.outer(S, S) * self.cost_scale
+
+    def unscale_K(self, K_s: NDArray) -> NDArray:
+        return K_s * self.input_scale[:, None] / self.state_scale[None, :]
+
+    def as_dict(self) -> dict:
+        return {
+            "time_unit": self.time_unit,
+            "state_scale": self.state_scale.tolist(),
+            "input_scale": self.input_scale.tolist(),
+            "cost_scale": self.cost_scale,
+        }
+
+
+DEFAULT_TIME_UNIT_DIVISOR = 100.0
+"""With eps_k = 1/k the iteration needs about (w^2/alpha) exp(L / (2 alpha)) steps (alpha the
+slowest closed-loop decay rate and w its frequency, both in the iteration's time unit, L the
+log of the wanted accuracy), which is least for alpha near L / 2, a few units.  Lightly damped
+orbital problems have alpha between w0/20 and w0/40 for w0 the orbit rate, so the default unit
+is two decades below A's fastest rate."""
+
+
+def balanced_scaling(
+    A: ArrayLike, B: ArrayLike, Q: ArrayLike, R: ArrayLike, time_unit: float | None = None
+) -> Scaling:
+    """Scaling for a known model: time in units of ``time_unit`` (default: A's largest
+    eigenvalue modulus / DEFAULT_TIME_UNIT_DIVISOR, the orbit rate / 100 for Hill models), states balanced by scipy's
+    ``matrix_balance`` of A / w0 (powers of two, so exact), cost normalised to |Q_s|_2 = 1."""
+    A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
+    if time_unit is None:
+        fastest = float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
+        if fastest <= 1e-300:
+            fastest = float(np.linalg.norm(A, 2)) or 1.0
+        time_unit = fastest / DEFAULT_TIME_UNIT_DIVISOR
+    # a weak all-to-all coupling pins the scale of states that A does not feed back (the
+    # along-track position of Hill's equations), which balancing alone would send to extremes
+    As = np.abs(A) / time_unit
+    As = As + 1e-3 * float(np.max(As)) * np.ones_like(As)
+    _, (S, _) = scipy.linalg.matrix_balance(As, permute=False, separate=True)
+    S = np.asarray(S, dtype=float) / float(np.max(S))
+    q_norm = float(np.linalg.norm(Q * np.outer(S, S) / time_unit, 2))
+    cost = 1.0 / q_norm if q_norm > 0 else 1.0
+    return Scaling(time_unit, S, np.ones(B.shape[1]), cost)
+
+
+@dataclass(frozen=True)
+class StepSequence:
+    """eps_k for k = 0, 1, ...: ``harmonic`` eps_k = gain / (k + 1) (the paper's 1/k), or
+    ``constant`` eps_k = gain (forward Euler with a fixed step: pick it below the Euler
+    stability limit of the slowest lightly damped closed-loop mode)."""
+
+    kind: str = "harmonic"
+    gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("harmonic", "constant"):
+            raise ValueError(f"step kind must be 'harmonic' or 'constant', got {self.kind!r}")
+        if not (self.gain > 0 and math.isfinite(self.gain)):
+            raise ValueError(f"step gain must be positive and finite, got {self.gain}")
+
+    def __call__(self, k: int) -> float:
+        return self.gain / (k + 1) if self.kind == "harmonic" else self.gain
+
+
+@dataclass(frozen=True)
+class BoundSchedule:
+    """Radii of the bounded sets B_r: ``linear`` base (r + 1) (the paper's 10 (r + 1)) or
+    ``geometric`` base 2^r (which reaches a large |P*| in few resets)."""
+
+    kind: str = "linear"
+    base: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("linear", "geometric"):
+            raise ValueError(f"bound kind must be 'linear' or 'geometric', got {self.kind!r}")
+        if not self.base > 0:
+            raise ValueError(f"bound base must be positive, got {self.base}")
+
+    def __call__(self, r: int) -> float:
+        return self.base * (r + 1) if self.kind == "linear" else self.base * 2.0 ** min(r, 1000)
+
+
+@dataclass(frozen=True)
+class VIResult:
+    """Outcome of value iteration, gains in the problem's units.
+
+    K (m,n), P (n,n); ``residual`` is the last |P~_k - P_{k-1}| / eps_{k-1} (scaled units);
+    ``history`` holds |P_k - P_{k-1}| per iteration.
+    """
+
+    K: NDArray[np.float64]
+    P: NDArray[np.float64]
+    iterations: int
+    resets: int
+    converged: bool
+    residual: float
+    scaling: Scaling
+    history: NDArray[np.float64] = field(repr=False)
+    message: str = ""
+
+
+# P_s -> (A_s^T P_s + P_s A_s, K_s) in scaled units
+RiccatiMap = Callable[[NDArray], tuple[NDArray, NDArray]]
+
+
+def value_iteration_loop(
+    riccati_map: RiccatiMap,
+    Q_s: NDArray,
+    R_s: NDArray,
+    P0_s: NDArray,
+    steps: StepSequence,
+    bounds: BoundSchedule,
+    tol: float,
+    max_iterations: int,
+    psd_tol: float = 1e-6,
+) -> tuple[NDArray, NDArray, int, int, bool, float, NDArray]:
+    """The iteration shared by Algorithms 1 and 2, in scaled units.
+
+    P~_{k+1} = P_k + eps_k (H_k + Q - K_{k+1}^T R K_{k+1});  reset to P0 (r += 1) when P~ leaves
+    B_r (|P~|_F > radius, or an eigenvalue below -psd_tol |P~|: a strict PSD test would reset on
+    round-off); stop when |P~_{k+1} - P_k| / eps_k < tol max(1, |P_k|) (relative, so that the
+    rule does not depend on the cost's units).  Norms are Frobenius, which bound the
+    induced norm from above, so the stopping rule is never looser than the paper's.
+    Returns (P, K, iterations, resets, converged, residual, history).
+    """
+    P = P0_s.copy()
+    r = 0
+    history = np.empty(max_iterations)
+    residual = math.inf
+    K = np.zeros((R_s.shape[0], P.shape[0]))
+    for k in range(max_iterations):
+        H, K = riccati_map(P)
+        dP = H + Q_s - K.T @ R_s @ K
+        dP = (dP + dP.T) * 0.5
+        eps = steps(k)
+        residual = float(np.sqrt(np.sum(dP * dP)))
+        if not math.isfinite(residual):
+            return P, K, k + 1, r, False, residual, history[:k]
+        P_new = P + eps * dP
+        history[k] = eps * residual
+        if residual < tol * max(1.0, float(np.sqrt(np.sum(P * P)))):
+            return P_new, K, k + 1, r, True, residual, history[: k + 1]
+        norm = float(np.sqrt(np.sum(P_new * P_new)))
+        if norm > bounds(r) or np.linalg.eigvalsh(P_new)[0] < -psd_tol * norm:
+            P = P0_s.copy()
+            r += 1
+        else:
+            P = P_new
+    return P, K, max_iterations, r, False, residual, history
+
+
+def value_iteration(
+    A: ArrayLike,
+    B: ArrayLike,
+    Q: ArrayLike,
+    R: ArrayLike,
+    *,
+    P0: ArrayLike | None = None,
+    steps: StepSequence | None = None,
+    bounds: BoundSchedule | None = None,
+    tol: float = 1e-6,
+    max_iterations: int = 200_000,
+    scaling: Scaling | bool = True,
+) -> VIResult:
+    """Model-based value iteration (Algorithm 1) for K*, P*.
+
+    A (n,n), B (n,m), Q (n,n), R (m,m).  ``scaling``: True (default) for
+    :func:`balanced_scaling`, False for the problem's own units, or a :class:`Scaling`.
+    P0 is given in scaled units (default 1e-3 I, small against P* as DESIGN.md section 7
+    advises).  ``tol`` bounds the scaled Riccati residual relative to |P_k| at the stop.
+    """
+    A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
+    n, m = B.shape
+    if scaling is True:
+        sc = balanced_scaling(A, B, Q, R)
+    elif scaling is False:
+        sc = Scaling.identity(n, m)
+    else:
+        sc = scaling
+    A_s, B_s = sc.dynamics(A, B)
+    Q_s, R_s = sc.weights(Q, R)
+    RinvBt = np.linalg.solve(R_s, B_s.T)
+
+    def riccati_map(P: NDArray) -> tuple[NDArray, NDArray]:
+        AtP = A_s.T @ P
+        return AtP + AtP.T, RinvBt @ P
+
+    P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
+    P_s, K_s, k, resets, converged, residual, history = value_iteration_loop(
+        riccati_map, Q_s, R_s, P0_s, steps or StepSequence(), bounds or BoundSchedule(),
+        tol, max_iterations,
+    )
+    K_s = RinvBt @ P_s
+    message = (
+        f"converged in {k} iterations ({resets} resets)"
+        if converged
+        else f"not converged after {k} iterations: residual {residual:.3g} > tol {tol:g}"
+    )
+    return VIResult(
+        K=sc.unscale_K(K_s), P=sc.unscale_P(P_s), iterations=k, resets=resets,
+        converged=converged, residual=residual, scaling=sc, history=history, message=message,
+    )
