@@ -36,7 +36,7 @@ from ddvi_core.value_iteration import (
     StepSequence,
     value_iteration_loop,
 )
-from ddvi_core.vec import triangle_size, unvec, unvecs, vec, vecs, vecv
+from ddvi_core.vec import triangle_size, unvec, vec, vecs, vecv
 
 __all__ = [
     "DDVIResult",
@@ -104,8 +104,15 @@ class IntervalCollector:
     starts a new one there, so no integral spans missing data; ``discarded`` counts them.
     """
 
-    def __init__(self, n: int, m: int, q: int, interval: float, max_gap: float | None = None,
-                 max_intervals: int = 100_000) -> None:
+    def __init__(
+        self,
+        n: int,
+        m: int,
+        q: int,
+        interval: float,
+        max_gap: float | None = None,
+        max_intervals: int = 100_000,
+    ) -> None:
         if min(n, m) < 1 or q < 0:
             raise ValueError(f"need n >= 1, m >= 1, q >= 0; got n={n}, m={m}, q={q}")
         if not (interval > 0 and math.isfinite(interval)):
@@ -188,11 +195,27 @@ class IntervalCollector:
         N = self.n + self.q
         if not self._W:
             empty = np.zeros((0, N))
-            return IntervalData(self.n, self.m, self.q, np.zeros((0, N, N)),
-                                np.zeros((0, N, self.m)), empty, empty, np.zeros(0), np.zeros(0))
+            return IntervalData(
+                self.n,
+                self.m,
+                self.q,
+                np.zeros((0, N, N)),
+                np.zeros((0, N, self.m)),
+                empty,
+                empty,
+                np.zeros(0),
+                np.zeros(0),
+            )
         return IntervalData(
-            self.n, self.m, self.q, np.array(self._W), np.array(self._G), np.array(self._ws),
-            np.array(self._we), np.array(self._ts), np.array(self._te),
+            self.n,
+            self.m,
+            self.q,
+            np.array(self._W),
+            np.array(self._G),
+            np.array(self._ws),
+            np.array(self._we),
+            np.array(self._ts),
+            np.array(self._te),
         )
 
 
@@ -224,8 +247,9 @@ class DDVIResult:
     message: str = ""
 
 
-def _theta(data: IntervalData, T: NDArray, R: NDArray, W: NDArray, G: NDArray,
-           ws: NDArray, we: NDArray) -> tuple[NDArray, NDArray]:
+def _theta(
+    data: IntervalData, T: NDArray, R: NDArray, W: NDArray, G: NDArray, ws: NDArray, we: NDArray
+) -> tuple[NDArray, NDArray]:
     """Theta_j (rho, cols) and delta_j (rho, n(n+1)/2) for xbar = T w."""
     n, m, q = data.n, data.m, data.q
     rows, cols = np.triu_indices(n)
@@ -238,26 +262,33 @@ def _theta(data: IntervalData, T: NDArray, R: NDArray, W: NDArray, G: NDArray,
     return Theta, delta
 
 
-def _rank_report(Theta: NDArray, n: int, m: int, q: int, rank: int, needed: int,
-                 rho: int, rtol: float) -> str:
+def _rank_report(
+    Theta: NDArray, n: int, m: int, q: int, rank: int, needed: int, rho: int, rtol: float
+) -> str:
     parts = [f"data rank {rank} of {needed} needed (n(n+1)/2 + (m+q)n with n={n}, m={m}, q={q})"]
     if rho < needed:
         parts.append(f"only {rho} intervals were collected; at least {needed} are needed")
-    _, s, Vt = np.linalg.svd(Theta, full_matrices=True)
+    *_, Vt = np.linalg.svd(Theta, full_matrices=True)
     null = Vt[rank:]
     t = triangle_size(n)
     blocks = {
         "the state's quadratic terms (x excitation)": slice(0, t),
         "the input terms (u excitation: add exploration noise)": slice(t, t + m * n),
-        "the exostate terms (v excitation: the exosystem signals or their product with x)":
-            slice(t + m * n, t + (m + q) * n),
+        "the exostate terms (v excitation: the exosystem signals or their product with x)": slice(
+            t + m * n, t + (m + q) * n
+        ),
     }
-    missing = [name for name, sl in blocks.items()
-               if null.size and float(np.max(np.linalg.norm(null[:, sl], axis=1))) > 0.3]
+    missing = [
+        name
+        for name, sl in blocks.items()
+        if null.size and float(np.max(np.linalg.norm(null[:, sl], axis=1))) > 0.3
+    ]
     if missing:
         parts.append("not excited: " + "; ".join(missing))
-    parts.append("collect more intervals with richer exploration (at least 3 sinusoids of "
-                 "distinct frequencies) before learning")
+    parts.append(
+        "collect more intervals with richer exploration (at least 3 sinusoids of "
+        "distinct frequencies) before learning"
+    )
     return "; ".join(parts)
 
 
@@ -341,7 +372,8 @@ def learn_from_data(
         if rj < needed:
             prefix = "" if j == 0 else f"Theta_{j} (xbar_{j} = x - X_{j} v): "
             raise RankDeficientError(
-                prefix + _rank_report(Th / cn, n, m, q, rj, needed, rho, rank_rtol), rj, needed)
+                prefix + _rank_report(Th / cn, n, m, q, rj, needed, rho, rank_rtol), rj, needed
+            )
         ranks.append(rj)
         if j == 0:
             condition = float(sv[0] / sv[needed - 1])
@@ -363,14 +395,22 @@ def learn_from_data(
 
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
     P_s, K_s, k, resets, converged, res_vi, history = value_iteration_loop(
-        riccati_map, Q_s, R_s, P0_s, steps or StepSequence(), bounds or BoundSchedule(),
-        tol, max_iterations,
+        riccati_map,
+        Q_s,
+        R_s,
+        P0_s,
+        steps or StepSequence(),
+        bounds or BoundSchedule(),
+        tol,
+        max_iterations,
     )
     p_star = vecs(P_s)
     theta0 = maps[0] @ p_star
     K_s = unvec(theta0[t_ : t_ + mn], (m, n))
-    residual = float(np.linalg.norm(Theta0 @ theta0 - delta0 @ p_star)
-                     / max(np.linalg.norm(delta0 @ p_star), 1e-300))
+    residual = float(
+        np.linalg.norm(Theta0 @ theta0 - delta0 @ p_star)
+        / max(np.linalg.norm(delta0 @ p_star), 1e-300)
+    )
 
     # ---- B, D, S(X_j) from data; (X*, U*) by Problem 1 --------------------------------------
     Pinv = np.linalg.inv(P_s)
@@ -382,8 +422,16 @@ def learn_from_data(
         Qb = np.eye(n) if Qbar is None else np.asarray(Qbar, dtype=float)
         Rb = np.eye(m) if Rbar is None else np.asarray(Rbar, dtype=float)
         Iq = np.eye(q)
-        Nx = np.column_stack([vec(X) for X in X_list[2:]]) if len(X_list) > 2 else np.zeros((n * q, 0))
-        Ns = np.column_stack([vec(Sx) for Sx in S_X[2:]]) if len(X_list) > 2 else np.zeros((n * q, 0))
+        Nx = (
+            np.column_stack([vec(X) for X in X_list[2:]])
+            if len(X_list) > 2
+            else np.zeros((n * q, 0))
+        )
+        Ns = (
+            np.column_stack([vec(Sx) for Sx in S_X[2:]])
+            if len(X_list) > 2
+            else np.zeros((n * q, 0))
+        )
         h = Nx.shape[1]
         Gc = np.hstack([Ns, -np.kron(Iq, B_s)])
         gc = vec(D_s) - vec(S_X[1])
@@ -399,11 +447,28 @@ def learn_from_data(
         X, U, D_si = np.zeros((n, 0)), np.zeros((m, 0)), np.zeros((n, 0))
     K = sc.unscale_K(K_s)
     L = U + K @ X
-    message = (f"converged in {k} iterations ({resets} resets)" if converged else
-               f"not converged after {k} iterations (residual {res_vi:.3g})")
+    message = (
+        f"converged in {k} iterations ({resets} resets)"
+        if converged
+        else f"not converged after {k} iterations (residual {res_vi:.3g})"
+    )
     return DDVIResult(
-        K=K, L=L, P=sc.unscale_P(P_s), X=X, U=U, iterations=k, resets=resets,
-        converged=converged, rank=rank, rank_needed=needed, condition=condition,
-        residual=residual, intervals=rho, scaling=sc,
-        B_implied=B_s * S[:, None] * w0, D_implied=D_si, history=history, message=message,
+        K=K,
+        L=L,
+        P=sc.unscale_P(P_s),
+        X=X,
+        U=U,
+        iterations=k,
+        resets=resets,
+        converged=converged,
+        rank=rank,
+        rank_needed=needed,
+        condition=condition,
+        residual=residual,
+        intervals=rho,
+        scaling=sc,
+        B_implied=B_s * S[:, None] * w0,
+        D_implied=D_si,
+        history=history,
+        message=message,
     )

@@ -29,14 +29,17 @@ __all__ = [
 ]
 
 
-def schweighart_sedwick_c(a: float, inclination: float, j2: float = J2_EARTH,
-                          r_earth: float = R_EARTH) -> float:
+def schweighart_sedwick_c(
+    a: float, inclination: float, j2: float = J2_EARTH, r_earth: float = R_EARTH
+) -> float:
     """c = sqrt(1 + s), s = 3 J2 R_E^2 / (8 a^2) (1 + 3 cos 2i) (Schweighart & Sedwick)."""
     s = 3.0 * j2 * r_earth**2 / (8.0 * a**2) * (1.0 + 3.0 * math.cos(2.0 * inclination))
     return math.sqrt(1.0 + s)
 
 
-def drag_sensitivity(mass: float, area: float, cd: float, normal_angle: float) -> tuple[float, float]:
+def drag_sensitivity(
+    mass: float, area: float, cd: float, normal_angle: float
+) -> tuple[float, float]:
     """Ballistic coefficient beta = C_D A_proj / m and its sensitivity d(beta)/d(sigma3).
 
     One flat facet whose normal lies in the body x-y plane at ``normal_angle`` (rad) from body
@@ -140,8 +143,15 @@ def rendezvous_problem(params: DragRendezvous | None = None) -> RegulationProble
     F[0, 0] = -p.y_ref
     D = np.zeros((4, 5))
     return RegulationProblem(
-        A=A, B=B, C=C, D=D, E=E, F=F,
-        Q=p.Q_weight * np.eye(4), R=np.array([[p.R_weight]]), name="rendezvous",
+        A=A,
+        B=B,
+        C=C,
+        D=D,
+        E=E,
+        F=F,
+        Q=p.Q_weight * np.eye(4),
+        R=np.array([[p.R_weight]]),
+        name="rendezvous",
     )
 
 
@@ -204,7 +214,9 @@ def paper_printed_problem() -> RegulationProblem:
     Pd = 2.2e-11
     damp = beta * Pd * nbar * r_c
     L1 = np.diag([(5 * c**2 - 2) * nbar**2, 0.0, nbar**2])
-    L2 = np.array([[-0.5 * damp, 2 * nbar * c, 0.0], [-2 * nbar, -damp, 0.0], [0.0, 0.0, -0.5 * damp]])
+    L2 = np.array(
+        [[-0.5 * damp, 2 * nbar * c, 0.0], [-2 * nbar, -damp, 0.0], [0.0, 0.0, -0.5 * damp]]
+    )
     A = np.block([[np.zeros((3, 3)), np.eye(3)], [L1, L2]])
     B = np.zeros((6, 3))
     # d(beta)/d(sigma_p) is a row (1x3); only the rotation about the orbit normal matters

@@ -53,9 +53,7 @@ def _matrix(name: str, value: ArrayLike, shape: tuple[int | None, int | None]) -
     for axis, want in enumerate(shape):
         if want is not None and M.shape[axis] != want:
             expected = "x".join("?" if s is None else str(s) for s in shape)
-            raise ProblemError(
-                f"{name}: expected shape {expected}, got {M.shape[0]}x{M.shape[1]}"
-            )
+            raise ProblemError(f"{name}: expected shape {expected}, got {M.shape[0]}x{M.shape[1]}")
     if not np.all(np.isfinite(M)):
         raise ProblemError(f"{name}: contains a non-finite entry (NaN or inf)")
     return M
@@ -254,6 +252,13 @@ class RegulationProblem:
                             else ""
                         )
                     )
+            rank_B = numerical_rank(_unit_cols(self.B), rtol)
+            if bad and rank_B < p:
+                bad.insert(
+                    0,
+                    f"rank B = {rank_B} < p = {p}: {rank_B} effective input(s) cannot "
+                    f"regulate {p} outputs, so rank n + p is out of reach",
+                )
             checks.append(
                 AssumptionCheck(
                     "regulator equations solvable",

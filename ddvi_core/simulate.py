@@ -38,8 +38,14 @@ class Exploration:
             raise ValueError(f"exploration frequencies must be positive rad/s: {self.frequencies}")
 
     @staticmethod
-    def spread(amplitude: float, rate: float, count: int = 6, lo: float = 0.3, hi: float = 30.0,
-               seed: int = 0) -> Exploration:
+    def spread(
+        amplitude: float,
+        rate: float,
+        count: int = 6,
+        lo: float = 0.3,
+        hi: float = 30.0,
+        seed: int = 0,
+    ) -> Exploration:
         """``count`` frequencies spread geometrically over lo*rate .. hi*rate."""
         return Exploration(amplitude, tuple(np.geomspace(lo * rate, hi * rate, count)), seed)
 
@@ -63,9 +69,18 @@ def exact_discretisation(A: NDArray, B: NDArray, D: NDArray, E: NDArray, h: floa
 
 
 def simulate_zoh(
-    A: ArrayLike, B: ArrayLike, D: ArrayLike | None, E: ArrayLike | None,
-    x0: ArrayLike, v0: ArrayLike | None, *, K0: ArrayLike, exploration: Exploration,
-    sample_period: float, command_period: float, duration: float,
+    A: ArrayLike,
+    B: ArrayLike,
+    D: ArrayLike | None,
+    E: ArrayLike | None,
+    x0: ArrayLike,
+    v0: ArrayLike | None,
+    *,
+    K0: ArrayLike,
+    exploration: Exploration,
+    sample_period: float,
+    command_period: float,
+    duration: float,
     input_limit: float | None = None,
 ) -> Iterator[tuple[float, NDArray, NDArray, NDArray]]:
     """Yield samples (t, x, u, v) every ``sample_period`` up to ``duration``, where u is the
@@ -83,9 +98,10 @@ def simulate_zoh(
         raise ValueError("command_period must be a whole multiple of sample_period")
     ratio = round(ratio)
     Phi = exact_discretisation(A, B, D, E, sample_period)
-    z = np.concatenate([np.asarray(x0, float), np.zeros(q) if v0 is None else np.asarray(v0, float),
-                        np.zeros(m)])
-    steps = int(math.floor(duration / sample_period + 1e-9))
+    z = np.concatenate(
+        [np.asarray(x0, float), np.zeros(q) if v0 is None else np.asarray(v0, float), np.zeros(m)]
+    )
+    steps = math.floor(duration / sample_period + 1e-9)
     for k in range(steps + 1):
         t = k * sample_period
         if k % ratio == 0:

@@ -99,8 +99,9 @@ def balanced_scaling(
     A: ArrayLike, B: ArrayLike, Q: ArrayLike, R: ArrayLike, time_unit: float | None = None
 ) -> Scaling:
     """Scaling for a known model: time in units of ``time_unit`` (default: A's largest
-    eigenvalue modulus / DEFAULT_TIME_UNIT_DIVISOR, the orbit rate / 100 for Hill models), states balanced by scipy's
-    ``matrix_balance`` of A / w0 (powers of two, so exact), cost normalised to |Q_s|_2 = 1."""
+    eigenvalue modulus / DEFAULT_TIME_UNIT_DIVISOR, the orbit rate / 100 for Hill models),
+    states balanced by scipy's ``matrix_balance`` of A / w0 (powers of two, so exact), cost
+    normalised to |Q_s|_2 = 1."""
     A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
     if time_unit is None:
         fastest = float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
@@ -262,8 +263,14 @@ def value_iteration(
 
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
     P_s, K_s, k, resets, converged, residual, history = value_iteration_loop(
-        riccati_map, Q_s, R_s, P0_s, steps or StepSequence(), bounds or BoundSchedule(),
-        tol, max_iterations,
+        riccati_map,
+        Q_s,
+        R_s,
+        P0_s,
+        steps or StepSequence(),
+        bounds or BoundSchedule(),
+        tol,
+        max_iterations,
     )
     K_s = RinvBt @ P_s
     message = (
@@ -272,6 +279,13 @@ def value_iteration(
         else f"not converged after {k} iterations: residual {residual:.3g} > tol {tol:g}"
     )
     return VIResult(
-        K=sc.unscale_K(K_s), P=sc.unscale_P(P_s), iterations=k, resets=resets,
-        converged=converged, residual=residual, scaling=sc, history=history, message=message,
+        K=sc.unscale_K(K_s),
+        P=sc.unscale_P(P_s),
+        iterations=k,
+        resets=resets,
+        converged=converged,
+        residual=residual,
+        scaling=sc,
+        history=history,
+        message=message,
     )

@@ -66,7 +66,7 @@ def unvecs(p: ArrayLike, n: int | None = None) -> NDArray[np.float64]:
     if p.ndim != 1:
         raise ValueError(f"unvecs expects a vector, got shape {p.shape}")
     if n is None:
-        n = int(round((np.sqrt(8 * p.size + 1) - 1) / 2))
+        n = round(float((np.sqrt(8 * p.size + 1) - 1) / 2))
     if triangle_size(n) != p.size:
         raise ValueError(f"unvecs: length {p.size} is not n(n+1)/2 for n = {n}")
     rows, cols = np.triu_indices(n)

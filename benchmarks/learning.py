@@ -1,0 +1,77 @@
+"""Learning benchmark: every built-in scenario by every method, against the Riccati solve
+timed in the same run.  Run: ``python benchmarks/learning.py`` (add ``--json`` for JSON)."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+import json
+import time
+
+from ddvi_core.lqr import NotStabilisingError
+from ddvi_core.solve import METHODS, reference_errors, solve
+from ddvi_core.systems import BUILTIN_SYSTEMS
+
+
+def _timed(fn, repeat: int) -> tuple[float, object]:
+    best, out = float("inf"), None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--repeat", type=int, default=3, help="best of N runs per figure")
+    args = ap.parse_args()
+    rows = []
+    for name, build in BUILTIN_SYSTEMS.items():
+        system = build()
+        try:
+            t_ref, _ = _timed(lambda s=system: solve(s, "lqr"), max(args.repeat, 20))
+        except NotStabilisingError as exc:
+            rows.append({"system": name, "method": "-", "note": f"no Riccati solution: {exc}"})
+            continue
+        for method in METHODS:
+            t, sol = _timed(lambda s=system, m=method: solve(s, m), args.repeat)
+            err = reference_errors(system, sol) if method != "lqr" else {"K_error": 0.0}
+            rows.append(
+                {
+                    "system": name,
+                    "method": method,
+                    "iterations": sol.iterations,
+                    "converged": sol.converged,
+                    "wall_s": t,
+                    "riccati_s": t_ref,
+                    "ratio_to_riccati": t / t_ref,
+                    "K_error": err.get("K_error"),
+                    "L_error": err.get("L_error"),
+                }
+            )
+    if args.json:
+        print(json.dumps(rows))
+        return
+    print(
+        f"{'system':<18} {'method':<5} {'iter':>7} {'conv':>5} {'wall ms':>9} "
+        f"{'riccati ms':>10} {'ratio':>8} {'|dK|/|K*|':>10} {'|dL|/|L*|':>10}"
+    )
+    for r in rows:
+        if "note" in r:
+            print(f"{r['system']:<18} {r['note']}")
+            continue
+        fmt = lambda v: "-" if v is None else f"{v:.2e}"  # noqa: E731
+        print(
+            f"{r['system']:<18} {r['method']:<5} {r['iterations']:>7} {r['converged']!s:>5} "
+            f"{1e3 * r['wall_s']:>9.2f} {1e3 * r['riccati_s']:>10.3f} "
+            f"{r['ratio_to_riccati']:>8.1f} {fmt(r['K_error']):>10} {fmt(r['L_error']):>10}"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,148 @@
+"""The ``ddvi`` command: scenarios, check, learn (and, as the flight system grows, more)."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: 2 cores, services need them
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+
+
+def _rows(M: np.ndarray) -> list[list[float]]:
+    return np.asarray(M, dtype=float).tolist()
+
+
+def _load(name: str):
+    from ddvi_core.systems import SystemFileError, load_system
+
+    try:
+        return load_system(name)
+    except SystemFileError as exc:
+        print(f"ddvi: {exc}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE) from None
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    from ddvi_core.systems import BUILTIN_SYSTEMS
+
+    for name, build in BUILTIN_SYSTEMS.items():
+        s = build()
+        pr = s.problem
+        print(f"{name:<18} n={pr.n} m={pr.m} p={pr.p} q={pr.q}  {s.description}")
+    return EXIT_OK
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    system = _load(args.system)
+    report = system.problem.check_assumptions()
+    if args.json:
+        print(json.dumps({"system": system.name, **report.as_dict()}))
+    else:
+        print(
+            f"{system.name}: n={system.problem.n} m={system.problem.m} "
+            f"p={system.problem.p} q={system.problem.q}"
+        )
+        for c in report.checks:
+            print(f"  [{'ok' if c.holds else 'FAIL'}] {c.name}: {c.detail}")
+        print("all assumptions hold" if report.ok else f"{len(report.failures)} assumption(s) fail")
+    return EXIT_OK if report.ok else EXIT_FAIL
+
+
+def cmd_learn(args: argparse.Namespace) -> int:
+    from ddvi_core.learning import LearningError
+    from ddvi_core.lqr import NotStabilisingError
+    from ddvi_core.regulator import InfeasibleError
+    from ddvi_core.solve import reference_errors, solve
+
+    system = _load(args.system)
+    t0 = time.perf_counter()
+    try:
+        sol = solve(system, args.method, seed=args.seed)
+    except (LearningError, NotStabilisingError, InfeasibleError) as exc:
+        print(f"ddvi learn {system.name} --method {args.method}: {exc}", file=sys.stderr)
+        return EXIT_FAIL
+    wall = time.perf_counter() - t0
+    out: dict[str, Any] = {
+        "system": system.name,
+        "method": sol.method,
+        "K": _rows(sol.K),
+        "L": _rows(sol.L) if sol.L.size else [],
+        "P": _rows(sol.P),
+        "iterations": sol.iterations,
+        "converged": sol.converged,
+        "wall_s": wall,
+    }
+    if args.method != "lqr":
+        out.update(reference_errors(system, sol))
+    for key, val in sol.details.items():
+        if isinstance(val, np.ndarray):
+            val = [str(v) for v in val] if np.iscomplexobj(val) else val.tolist()
+        out[key] = val
+    if args.json:
+        print(json.dumps(out))
+    else:
+        np.set_printoptions(precision=6, linewidth=110)
+        print(
+            f"{system.name} by {sol.method}: {'converged' if sol.converged else 'NOT converged'}"
+            f" after {sol.iterations} iterations in {wall:.3f} s"
+        )
+        print("K =\n" + str(sol.K))
+        if sol.L.size:
+            print("L =\n" + str(sol.L))
+        print("P =\n" + str(sol.P))
+        for key in ("K_error", "L_error"):
+            if key in out:
+                print(f"{key} against the Riccati solution: {out[key]:.3e}")
+        for key in (
+            "resets",
+            "rank",
+            "rank_needed",
+            "condition",
+            "residual",
+            "intervals",
+            "initial_gain",
+            "message",
+        ):
+            if key in out:
+                print(f"{key}: {out[key]}")
+    return EXIT_OK if sol.converged else EXIT_FAIL
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ddvi_core.solve import METHODS
+
+    parser = argparse.ArgumentParser(
+        prog="ddvi", description="Data-driven value iteration for spacecraft rendezvous."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("scenarios", help="list the built-in scenarios")
+    p.set_defaults(func=cmd_scenarios)
+    p = sub.add_parser("check", help="check the assumptions of a system (exit 1 if one fails)")
+    p.add_argument("system", help="built-in scenario name or TOML system file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_check)
+    p = sub.add_parser("learn", help="compute the optimal gains of a system by one method")
+    p.add_argument("system", help="built-in scenario name or TOML system file")
+    p.add_argument("--method", choices=METHODS, default="ddvi")
+    p.add_argument("--seed", type=int, default=None, help="exploration seed (ddvi)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_learn)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
