@@ -271,3 +271,39 @@ def test_collector_quadrature_is_second_order() -> None:
         errs.append(abs(col.data().W[0, 0, 0] - (T / 2 - math.sin(2 * T) / 4)))
     assert errs[1] > 0
     assert errs[0] / errs[1] == pytest.approx(4.0, rel=0.05)
+
+
+def test_collector_gap_after_closed_interval_discards_nothing() -> None:
+    col = IntervalCollector(1, 1, 0, 10.0, max_gap=5.0)
+    for t in range(0, 11):
+        col.add(float(t), [1.0], [0.0])
+    col.add(30.0, [1.0], [0.0])  # gap right after [0, 10] closed: nothing open was lost
+    assert col.discarded == 0 and col.intervals == 1
+
+
+def test_learner_without_exosystem() -> None:
+    """Plain optimal stabilisation (q = 0) on a damped oscillator, against the ARE."""
+    A = np.array([[0.0, 1.0], [-1.0, -0.5]])
+    B = np.array([[0.0], [1.0]])
+    col = IntervalCollector(2, 1, 0, 5.0)
+    for t, x, u, v in simulate_zoh(A, B, None, None, [1.0, 0.0], None, K0=np.zeros((1, 2)),
+                                   exploration=Exploration.spread(1.0, 1.0, 6, seed=2),
+                                   sample_period=0.01, command_period=0.01, duration=200.0):
+        col.add(t, x, u, v)
+    res = learn_from_data(col.data(), np.eye(2), np.eye(1), time_unit=1.0)
+    K_star = solve_lqr(A, B, np.eye(2), np.eye(1)).K
+    assert res.converged
+    assert _rel(res.K, K_star) < 1e-4
+    assert res.rank == res.rank_needed == 5
+    assert res.L.shape == (1, 0)
+
+
+def test_exploration_bounded_by_amplitude() -> None:
+    e = Exploration.spread(0.3, 1.0, 6, seed=4)
+    peak = max(float(np.max(np.abs(e(t, 3)))) for t in np.linspace(0.0, 500.0, 5001))
+    assert 0.1 < peak <= 0.3
+    assert np.all(Exploration(0.0, (1.0,))(3.0, 2) == 0.0)
+    with pytest.raises(ValueError):
+        Exploration(-1.0, (1.0,))
+    with pytest.raises(ValueError):
+        Exploration(1.0, (0.0,))
