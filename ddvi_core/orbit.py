@@ -33,6 +33,7 @@ __all__ = [
     "elements_to_rv",
     "hill_frame",
     "hill_pointing_mrp",
+    "hill_to_curvilinear",
     "hill_to_rv",
     "mrp_add",
     "mrp_shadow",
@@ -272,6 +273,48 @@ def rv_to_hill(
     dv = vd - vc - np.cross(omega, dr)
     out = np.concatenate((dr @ HN.T, dv @ HN.T), axis=1)
     return out[0] if single and single_v else out
+
+
+def hill_to_curvilinear(r_c: ArrayLike, v_c: ArrayLike, x_hill: ArrayLike) -> FloatArray:
+    """Curvilinear (cylindrical) Hill state from the rectilinear one.
+
+    x = |r_d| - |r_c| (radial separation), y = |r_c| theta (arc length along the chief's orbit
+    to the deputy's projection on the orbit plane), z = |r_c| phi (arc length out of the plane),
+    with their time derivatives.  The linearised relative dynamics (Clohessy-Wiltshire,
+    Schweighart-Sedwick) hold in these coordinates far beyond the few-km range where the
+    rectilinear ones do: at 60 km along-track the frame's curvature alone puts y^2 / 2r = 270 m
+    into the rectilinear x.
+
+    r_c, v_c : (3,) chief; x_hill : (6,) or (N, 6) from :func:`rv_to_hill`.  Returns the same
+    shape.
+    """
+    (rc,), _ = _stack(r_c, "r_c")
+    (vc,), _ = _stack(v_c, "v_c")
+    X, single = _stack(x_hill, "x_hill", 6)
+    r0 = float(np.linalg.norm(rc))
+    r0dot = float(rc @ vc) / r0
+    R = X[:, :3] + np.array([r0, 0.0, 0.0])  # deputy position from Earth's centre, Hill axes
+    Rd = X[:, 3:] + np.array([r0dot, 0.0, 0.0])  # its rate of change in the rotating frame
+    rho2 = R[:, 0] ** 2 + R[:, 1] ** 2
+    rho = np.sqrt(rho2)
+    rn = np.sqrt(rho2 + R[:, 2] ** 2)
+    rn_dot = np.einsum("ij,ij->i", R, Rd) / rn
+    theta = np.arctan2(R[:, 1], R[:, 0])
+    theta_dot = (R[:, 0] * Rd[:, 1] - R[:, 1] * Rd[:, 0]) / rho2
+    phi = np.arctan2(R[:, 2], rho)
+    rho_dot = (R[:, 0] * Rd[:, 0] + R[:, 1] * Rd[:, 1]) / rho
+    phi_dot = (Rd[:, 2] * rho - R[:, 2] * rho_dot) / (rn * rn)
+    out = np.column_stack(
+        [
+            rn - r0,
+            r0 * theta,
+            r0 * phi,
+            rn_dot - r0dot,
+            r0dot * theta + r0 * theta_dot,
+            r0dot * phi + r0 * phi_dot,
+        ]
+    )
+    return out[0] if single else out
 
 
 def hill_to_rv(

@@ -117,6 +117,24 @@ def cmd_learn(args: argparse.Namespace) -> int:
     return EXIT_OK if sol.converged else EXIT_FAIL
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    from services.deployment import DeploymentError, load_deployment
+    from services.launcher import Launcher
+
+    try:
+        dep = load_deployment(args.deployment)
+    except DeploymentError as exc:
+        print(f"ddvi run: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    return Launcher(dep, out_root=args.output, quiet=args.quiet).execute()
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from services.monitor import monitor_command
+
+    return int(monitor_command(args) or 0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ddvi_core.solve import METHODS
 
@@ -136,6 +154,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="exploration seed (ddvi)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_learn)
+    p = sub.add_parser("run", help="run a deployment: every service its own process on Zenoh")
+    p.add_argument(
+        "deployment",
+        nargs="?",
+        default=None,
+        help="deployment file or name in deployments/ (default: rendezvous)",
+    )
+    p.add_argument("--output", default=None, help="override run.output (the runs folder)")
+    p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
+    p.set_defaults(func=cmd_run)
+    p = sub.add_parser("monitor", help="print decoded messages of a running deployment")
+    p.add_argument("keyexpr", nargs="?", default="ddvi/**")
+    p.add_argument("--hub", default="tcp/127.0.0.1:7447", help="a running deployment's hub")
+    p.add_argument("--count", type=int, default=None, help="stop after N messages")
+    p.add_argument("--seconds", type=float, default=None, help="stop after S seconds")
+    p.set_defaults(func=cmd_monitor)
     return parser
 
 

@@ -510,6 +510,7 @@ def main(ctx: ServiceContext) -> int:
     # Subscribe before anything else: the launcher starts the other services once it sees
     # this process alive.
     subs = _subscribe(ctx.bus.session, ctx.run, inbox)
+    ctx.ready()
     mon = Monitor(ctx)
     status: Status | None = None
     completed = False

@@ -1,0 +1,223 @@
+"""Controller service, one per deputy: the flight software under test.
+
+Inputs:  nav/<deputy>/state (nav), exo/state (exo).
+Outputs: cmd/<deputy>/att (cmd) every flight-software step; ctrl/<deputy>/gains (gains), beaconed
+         every step while learning and published whenever the gains change; ctrl/<deputy>/status
+         (status); stats/ctrl-<deputy>.
+
+Modes: ``lqr`` flies u = -K x + L v with gains from the nominal linear model.  ``ddvi`` flies
+u = -K0 x + eta(t) (K0 need not stabilise; eta a multi-sine inside the attitude limit), feeds
+every navigation sample to ddvi_core's IntervalCollector, runs data-driven value iteration at
+the configured time and switches to the learned K, L.  The learner gets what a flight computer
+knows: Q, R, the output map and reference (C, F), the exosystem E and the orbit rate; never A,
+B or D.  Control input u = sigma3, the relative MRP about the orbit normal; sigma1 = sigma2 = 0.
+"""
+
+from __future__ import annotations
+
+import queue
+import sys
+import time
+
+import numpy as np
+
+from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
+from ddvi_core.simulate import Exploration
+from ddvi_core.value_iteration import BoundSchedule, StepSequence
+from services.bus import queue_handler
+from services.deployment import Deployment
+from services.mission import IN_PLANE, lqr_gains, mean_motion, nominal_problem, orbit_period
+from services.service import ServiceContext, run_service
+
+
+class Controller:
+    """The control law and the learner's state; no I/O (the service loop does that)."""
+
+    def __init__(self, dep: Deployment, sc: str) -> None:
+        self.dep, self.sc = dep, sc
+        self.deputy = dep.deputy_named(sc)
+        self.problem = nominal_problem(dep, self.deputy)  # Q, R, C, E, F used by the learner
+        self.n_rate = mean_motion(dep)
+        self.fsw = dep.run.fsw_period
+        self.limit = self.deputy.attitude_limit
+        lrn = self.deputy.learning
+        self.mode = self.deputy.controller
+        if self.mode == "lqr":
+            self.K, self.L = lqr_gains(dep, self.deputy)
+            self.phase, self.source = "lqr", "lqr"
+        else:
+            self.K = np.array([lrn.K0], dtype=float)
+            self.L = np.zeros((1, self.problem.q))
+            self.phase, self.source = "exploring", "initial"
+            freqs = tuple(lrn.exploration_frequencies) or tuple(
+                np.geomspace(0.3 * self.n_rate, 30 * self.n_rate, 6)
+            )
+            self.exploration = Exploration(lrn.exploration_amplitude, freqs, lrn.seed)
+            self.collector = IntervalCollector(
+                4, 1, self.problem.q, lrn.interval, max_gap=3 * self.deputy.navigation.period
+            )
+            self.learn_at = lrn.learn_at_orbits * orbit_period(dep)
+            self.next_attempt = self.learn_at
+        self.u = 0.0  # the command in force
+        self.iteration = 0
+        self.converged = self.mode == "lqr"
+        self.learn_info: dict = {}
+        self.rank = self.rank_needed = 0
+
+    def command(self, t: float, x: np.ndarray, v: np.ndarray) -> float:
+        """The command for a flight-software step at t, from state x (4,) and exostate v."""
+        if self.phase == "exploring":
+            u = float((-self.K @ x + self.L @ v)[0] + self.exploration(t, 1)[0])
+        else:
+            u = float((-self.K @ x + self.L @ v)[0])
+        self.u = float(np.clip(u, -self.limit, self.limit))
+        return self.u
+
+    def learn(self, t: float) -> str:
+        """Run data-driven value iteration on the data so far; switch gains on success."""
+        lrn, pr = self.deputy.learning, self.problem
+        n = self.n_rate
+        t0 = time.perf_counter()
+        try:
+            r = learn_from_data(
+                self.collector.data(),
+                pr.Q,
+                pr.R,
+                time_unit=n,
+                C=pr.C,
+                E=pr.E,
+                F=pr.F,
+                steps=StepSequence(lrn.step, lrn.step_size),
+                bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
+                tol=lrn.tol,
+                max_iterations=lrn.max_iterations,
+                state_scale=[1.0, 1.0, n, n],
+            )
+        except LearningError as exc:
+            self.next_attempt = t + lrn.interval
+            return f"learning at t = {t:.0f} s failed, exploring on: {exc}"
+        self.rank, self.rank_needed = r.rank, r.rank_needed
+        if not r.converged:
+            self.next_attempt = t + lrn.interval
+            return f"learning at t = {t:.0f} s did not converge ({r.message}), exploring on"
+        self.K, self.L = r.K, r.L
+        self.phase, self.source = "learned", "ddvi"
+        self.iteration, self.converged = r.iterations, True
+        self.learn_info = {
+            "wall_s": time.perf_counter() - t0,
+            "condition": r.condition,
+            "residual": r.residual,
+            "intervals": r.intervals,
+        }
+        return (
+            f"learned at t = {t:.0f} s from {r.intervals} intervals in {r.iterations} "
+            f"iterations ({self.learn_info['wall_s']:.2f} s): K = {r.K.ravel().tolist()}, "
+            f"L = {r.L.ravel().tolist()}"
+        )
+
+
+def main(ctx: ServiceContext) -> int:
+    sc = ctx.name.removeprefix("ctrl-")
+    ctrl = Controller(ctx.deployment, sc)
+    run = ctx.deployment.run
+    inbox: queue.Queue = queue.Queue()
+    ctx.bus.subscribe(f"nav/{sc}/state", queue_handler(inbox), expected_schema="nav")
+    ctx.bus.subscribe("exo/state", queue_handler(inbox), expected_schema="exo")
+    ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
+    ctx.ready()
+    exo: dict[float, np.ndarray] = {}
+    navs: dict[float, np.ndarray] = {}
+    counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0}
+    steps = 0
+    final_t: float | None = None
+    last_t = -1.0
+
+    def publish_gains(t: float) -> None:
+        ctx.bus.publish(
+            f"ctrl/{sc}/gains",
+            "gains",
+            {
+                "sc": sc,
+                "K": ctrl.K,
+                "L": ctrl.L,
+                "source": ctrl.source,
+                "iteration": ctrl.iteration,
+                "converged": ctrl.converged,
+            },
+            t,
+        )
+
+    def publish_status(t: float) -> None:
+        c = ctrl.collector if ctrl.mode == "ddvi" else None
+        ctx.bus.publish(
+            f"ctrl/{sc}/status",
+            "status",
+            {
+                "sc": sc,
+                "mode": ctrl.mode,
+                "phase": ctrl.phase,
+                "samples": c.samples if c else 0,
+                "intervals": c.intervals if c else 0,
+                "rank": ctrl.rank,
+                "rank_needed": ctrl.rank_needed,
+                "counters": counters,
+            },
+            t,
+        )
+
+    publish_gains(0.0)
+    while not ctx.stop.is_set():
+        try:
+            _, msg = inbox.get(timeout=0.5)
+        except queue.Empty:
+            continue
+        if msg.schema == "clock":
+            if msg.body["final"]:
+                final_t = msg.t
+        elif msg.schema == "exo":
+            exo[msg.t] = msg.body["v"]
+        else:
+            navs[msg.t] = msg.body["x_hill"][list(IN_PLANE)]
+        # act on every navigation sample whose exostate has arrived, in time order
+        for t in sorted(t for t in navs if t in exo):
+            x, v = navs.pop(t), exo.pop(t)
+            if t <= last_t:
+                counters["samples_rejected"] += 1  # stale or replayed
+                continue
+            last_t = t
+            k = t / ctrl.fsw
+            if abs(k - round(k)) < 1e-6:  # a flight-software step
+                if ctrl.phase == "exploring" and t >= ctrl.next_attempt - 1e-6:
+                    counters["learn_attempts"] += 1
+                    ctx.log("info", ctrl.learn(t), t)
+                    publish_gains(t)
+                u = ctrl.command(t, x, v)
+                ctx.bus.publish(
+                    f"cmd/{sc}/att", "cmd", {"sc": sc, "sigma": [0.0, 0.0, u], "for_t": t}, t
+                )
+                counters["commands"] += 1
+                steps += 1
+                if ctrl.phase == "exploring":
+                    publish_gains(t)  # beaconed during learning
+                if steps % run.status_every == 0:
+                    publish_status(t)
+                    ctx.publish_stats(t, counters)
+            if ctrl.phase == "exploring":
+                try:
+                    ctrl.collector.add(t, x, [ctrl.u], v)
+                except LearningError as exc:
+                    counters["samples_rejected"] += 1
+                    ctx.log("warning", f"sample at t = {t} rejected: {exc}", t)
+        # forget exostates that no navigation sample will claim
+        for t in [t for t in exo if t < last_t]:
+            del exo[t]
+        if final_t is not None and last_t >= final_t - 1e-6:
+            break
+    publish_gains(last_t)
+    publish_status(last_t)
+    ctx.publish_stats(last_t, counters)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_service(main, "ctrl"))

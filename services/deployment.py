@@ -1,0 +1,351 @@
+"""Deployment files: what runs, with which parameters, on which links.
+
+A deployment is TOML; every table maps onto one dataclass below, and every key is checked:
+a typo or a wrong type raises DeploymentError naming the key (``deputy[1].learning.intervl:
+unknown key (did you mean 'interval'?)``).  Services take all their parameters from here.
+Angles in the file are degrees; lengths metres; times seconds.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "Atmosphere",
+    "Deployment",
+    "DeploymentError",
+    "Deputy",
+    "Environment",
+    "Learning",
+    "Navigation",
+    "Orbit",
+    "Run",
+    "SpacecraftSpec",
+    "load_deployment",
+]
+
+
+class DeploymentError(ValueError):
+    """A deployment file that cannot be run; the message names the key."""
+
+
+@dataclass(frozen=True)
+class Run:
+    name: str = "run"
+    orbits: float = 40.0  # mission length in chief orbits
+    nav_period: float = 10.0  # truth and navigation sample period, s
+    fsw_period: float = 60.0  # flight-software (command) period, s
+    mode: str = "lockstep"  # or "realtime"
+    rate: float = 1.0  # realtime: simulated seconds per wall second
+    command_deadline: float = 10.0  # lockstep: wall seconds to wait for a step's commands
+    startup_timeout: float = 60.0  # wall seconds for every service to come alive
+    output: str = "runs"  # where run folders (recording, report) are written
+    seed: int = 1
+    status_every: int = 10  # flight-software steps between status / stats messages
+
+
+@dataclass(frozen=True)
+class Bus:
+    mode: str = "peer"
+    port: int = 0  # the hub's loopback port; 0 picks a free one
+    connect: list[str] = field(default_factory=list)  # extra endpoints (a router elsewhere)
+
+
+@dataclass(frozen=True)
+class Environment:
+    backend: str = "builtin"
+    j2: bool = True
+    drag: bool = True
+    density_factor: float = 1.0  # truth density / nominal density
+    max_step: float = 60.0  # integrator step bound, s
+    rtol: float = 1e-11
+
+
+@dataclass(frozen=True)
+class Atmosphere:
+    rho0: float = 2.2e-11  # kg/m^3 at h_ref
+    h_ref: float = 300e3
+    scale_height: float = 8e3
+
+
+@dataclass(frozen=True)
+class SpacecraftSpec:
+    mass: float = 6.0
+    area: float = 0.06
+    cd: float = 2.2
+    normal_angle: float = 45.0  # facet normal in the body x-y plane, deg from body x
+
+
+@dataclass(frozen=True)
+class Orbit:
+    a: float = 6678.136e3
+    e: float = 0.0
+    i: float = 45.0
+    raan: float = 20.0
+    argp: float = 30.0
+    f: float = 20.0
+
+
+@dataclass(frozen=True)
+class Navigation:
+    period: float = 10.0  # s, a whole multiple of run.nav_period
+    position_noise: float = 0.0  # 1-sigma white noise per axis, m
+    velocity_noise: float = 0.0  # m/s
+    position_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    velocity_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Learning:
+    learn_at_orbits: float = 15.0  # when to learn and switch gains
+    interval: float = 600.0  # s per data interval
+    exploration_amplitude: float = 0.1  # rad (MRP) of the multi-sine
+    exploration_frequencies: list[float] = field(default_factory=list)  # rad/s; [] = spread
+    K0: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    step: str = "constant"
+    step_size: float = 0.01  # in units of the orbit rate
+    bounds: str = "geometric"
+    bound_base: float = 10.0
+    tol: float = 1e-6
+    max_iterations: int = 200_000
+    seed: int = 1
+
+
+@dataclass(frozen=True)
+class Deputy:
+    name: str = ""
+    controller: str = "lqr"  # "lqr" or "ddvi"
+    y_ref: float = 0.0  # along-track slot, m
+    orbit: Orbit = field(default_factory=lambda: Orbit(a=6678.376e3, f=19.75))
+    area_factor: float = 1.0  # truth facet area / nominal
+    navigation: Navigation = field(default_factory=Navigation)
+    learning: Learning = field(default_factory=Learning)
+    attitude_limit: float = 0.2  # |sigma_i| limit (MRP)
+
+
+@dataclass(frozen=True)
+class Deployment:
+    run: Run = field(default_factory=Run)
+    bus: Bus = field(default_factory=Bus)
+    environment: Environment = field(default_factory=Environment)
+    atmosphere: Atmosphere = field(default_factory=Atmosphere)
+    spacecraft: SpacecraftSpec = field(default_factory=SpacecraftSpec)
+    chief: Orbit = field(default_factory=Orbit)
+    deputy: list[Deputy] = field(default_factory=list)
+    path: str = ""
+
+    @property
+    def services(self) -> list[str]:
+        """Service names, in start order (the environment, the time master, last)."""
+        names = ["monitor"]
+        for d in self.deputy:
+            names += [f"nav-{d.name}", f"ctrl-{d.name}"]
+        return [*names, "environment"]
+
+    def deputy_named(self, name: str) -> Deputy:
+        for d in self.deputy:
+            if d.name == name:
+                return d
+        raise DeploymentError(
+            f"no deputy named {name!r}; deputies: " + ", ".join(d.name for d in self.deputy)
+        )
+
+
+# ---- generic strict parsing -----------------------------------------------------------------
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(where: str, tp: Any, value: Any) -> Any:
+    origin = typing.get_origin(tp)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise DeploymentError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise DeploymentError(f"{where}: must be finite, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise DeploymentError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise DeploymentError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise DeploymentError(f"{where}: expected a string, got {value!r}")
+        return value
+    if origin is list:
+        (item_tp,) = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise DeploymentError(f"{where}: expected a list, got {value!r}")
+        return [_convert(f"{where}[{i}]", item_tp, v) for i, v in enumerate(value)]
+    if isinstance(tp, type) and hasattr(tp, "__dataclass_fields__"):
+        return parse_table(tp, value, where)
+    if origin in (typing.Union, types.UnionType):
+        raise DeploymentError(f"{where}: unsupported type {tp}")
+    raise DeploymentError(f"{where}: unsupported type {_type_name(tp)}")
+
+
+def parse_table(cls: type, table: Any, where: str) -> Any:
+    """Build dataclass ``cls`` from a TOML table, checking every key and type."""
+    if not isinstance(table, dict):
+        raise DeploymentError(f"{where or 'deployment'}: expected a table, got {table!r}")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in fields(cls) if f.name != "path"]
+    kwargs = {}
+    prefix = f"{where}." if where else ""
+    for key, value in table.items():
+        if key not in names:
+            near = difflib.get_close_matches(key, names, n=1)
+            hint = f" (did you mean '{near[0]}'?)" if near else ""
+            raise DeploymentError(f"{prefix}{key}: unknown key{hint}; allowed: {', '.join(names)}")
+        kwargs[key] = _convert(f"{prefix}{key}", hints[key], value)
+    for f in fields(cls):
+        if f.default is MISSING and f.default_factory is MISSING and f.name not in kwargs:
+            raise DeploymentError(f"{prefix}{f.name}: required")
+    return cls(**kwargs)
+
+
+# ---- semantic checks ------------------------------------------------------------------------
+
+
+def _positive(where: str, value: float) -> None:
+    if not value > 0:
+        raise DeploymentError(f"{where}: must be positive, got {value}")
+
+
+def _multiple(where: str, value: float, base: float, base_name: str) -> None:
+    ratio = value / base
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise DeploymentError(
+            f"{where}: must be a whole multiple of {base_name} ({base} s), got {value}"
+        )
+
+
+def validate(dep: Deployment) -> None:
+    r = dep.run
+    for key in (
+        "orbits",
+        "nav_period",
+        "fsw_period",
+        "rate",
+        "command_deadline",
+        "startup_timeout",
+    ):
+        _positive(f"run.{key}", getattr(r, key))
+    if r.mode not in ("lockstep", "realtime"):
+        raise DeploymentError(f"run.mode: expected 'lockstep' or 'realtime', got {r.mode!r}")
+    _multiple("run.fsw_period", r.fsw_period, r.nav_period, "run.nav_period")
+    if dep.bus.mode not in ("peer", "client"):
+        raise DeploymentError(f"bus.mode: expected 'peer' or 'client', got {dep.bus.mode!r}")
+    if not 0 <= dep.bus.port < 65536:
+        raise DeploymentError(f"bus.port: expected 0..65535, got {dep.bus.port}")
+    if dep.environment.backend not in ("builtin", "basilisk"):
+        raise DeploymentError(
+            "environment.backend: expected 'builtin' or 'basilisk', got "
+            f"{dep.environment.backend!r}"
+        )
+    _positive("environment.density_factor", dep.environment.density_factor)
+    _positive("environment.max_step", dep.environment.max_step)
+    for key in ("mass", "area", "cd"):
+        _positive(f"spacecraft.{key}", getattr(dep.spacecraft, key))
+    for key in ("rho0", "scale_height"):
+        _positive(f"atmosphere.{key}", getattr(dep.atmosphere, key))
+    _positive("chief.a", dep.chief.a)
+    if not 0 <= dep.chief.e < 1:
+        raise DeploymentError(f"chief.e: expected 0 <= e < 1, got {dep.chief.e}")
+    if not dep.deputy:
+        raise DeploymentError("deputy: at least one [[deputy]] table is required")
+    seen = set()
+    for k, d in enumerate(dep.deputy):
+        w = f"deputy[{k}]"
+        if not d.name or not d.name.replace("_", "").isalnum() or d.name == "chief":
+            raise DeploymentError(
+                f"{w}.name: expected a name of letters, digits and _, "
+                f"other than 'chief', got {d.name!r}"
+            )
+        if d.name in seen:
+            raise DeploymentError(f"{w}.name: {d.name!r} is used twice")
+        seen.add(d.name)
+        if d.controller not in ("lqr", "ddvi"):
+            raise DeploymentError(f"{w}.controller: expected 'lqr' or 'ddvi', got {d.controller!r}")
+        _positive(f"{w}.orbit.a", d.orbit.a)
+        _positive(f"{w}.area_factor", d.area_factor)
+        if not 0 < d.attitude_limit <= 1:
+            raise DeploymentError(f"{w}.attitude_limit: expected 0 < limit <= 1 (MRP)")
+        _multiple(f"{w}.navigation.period", d.navigation.period, r.nav_period, "run.nav_period")
+        _multiple("run.fsw_period", r.fsw_period, d.navigation.period, f"{w}.navigation.period")
+        for key in ("position_noise", "velocity_noise"):
+            if getattr(d.navigation, key) < 0:
+                raise DeploymentError(f"{w}.navigation.{key}: must be >= 0")
+        for key in ("position_bias", "velocity_bias"):
+            if len(getattr(d.navigation, key)) != 3:
+                raise DeploymentError(f"{w}.navigation.{key}: expected 3 values")
+        lrn = d.learning
+        _positive(f"{w}.learning.learn_at_orbits", lrn.learn_at_orbits)
+        _multiple(
+            f"{w}.learning.interval", lrn.interval, d.navigation.period, f"{w}.navigation.period"
+        )
+        if not 0 <= lrn.exploration_amplitude <= d.attitude_limit:
+            raise DeploymentError(
+                f"{w}.learning.exploration_amplitude: must lie in "
+                f"[0, attitude_limit = {d.attitude_limit}]"
+            )
+        if len(lrn.K0) != 4:
+            raise DeploymentError(f"{w}.learning.K0: expected 4 values (gain on x, y, xdot, ydot)")
+        if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):
+            raise DeploymentError(
+                f"{w}.learning.step/bounds: expected step 'harmonic' or "
+                "'constant' and bounds 'linear' or 'geometric'"
+            )
+
+
+def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
+    dep = parse_table(Deployment, table, "")
+    dep = Deployment(
+        **{f.name: getattr(dep, f.name) for f in fields(Deployment) if f.name != "path"}, path=path
+    )
+    validate(dep)
+    return dep
+
+
+DEPLOYMENTS_DIR = Path(__file__).resolve().parent.parent / "deployments"
+
+
+def resolve(name_or_path: str | None) -> Path:
+    """A deployment file by path, or by name in the project's deployments/ folder."""
+    if name_or_path is None:
+        name_or_path = "rendezvous"
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    q = DEPLOYMENTS_DIR / f"{name_or_path}.toml"
+    if q.is_file():
+        return q
+    known = sorted(x.stem for x in DEPLOYMENTS_DIR.glob("*.toml"))
+    near = difflib.get_close_matches(name_or_path, known, n=1)
+    hint = f" (did you mean '{near[0]}'?)" if near else ""
+    raise DeploymentError(
+        f"{name_or_path}: no such deployment file or name{hint}; known: " + ", ".join(known)
+    )
+
+
+def load_deployment(name_or_path: str | None) -> Deployment:
+    path = resolve(name_or_path)
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise DeploymentError(f"{path}: not valid TOML ({exc})") from None
+    return deployment_from_table(table, str(path))

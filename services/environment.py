@@ -1,0 +1,161 @@
+"""Environment service: the truth and the time master.
+
+Inputs:  cmd/<deputy>/att (cmd) from each controller.
+Outputs: truth/<sc> (truth) for the chief and every deputy, exo/state (exo) and clock (clock)
+         at every navigation sample; stats/environment.
+
+Propagates every craft in one ODE (two-body + J2 + facet drag, ddvi_core.truth), one
+flight-software step at a time, with each deputy's commanded relative MRP (clipped to its
+attitude limit) held over the step.  Lock-step mode: after publishing the samples of step t_k it
+waits for every controller's command for t_k, or until the wall-clock deadline; a missing
+command leaves the last one in force (zero-order hold, as an actuator would) and is counted.
+Real-time mode: paces the samples to wall time times run.rate and never waits.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import sys
+import time
+
+import numpy as np
+
+from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
+from ddvi_core.truth import propagate
+from services.bus import queue_handler, wait_for_alive
+from services.mission import duration, exostate, initial_states, truth_atmosphere, truth_craft
+from services.service import ServiceContext, run_service
+
+
+def _on_grid(t: float, period: float) -> bool:
+    k = t / period
+    return abs(k - round(k)) < 1e-6
+
+
+def main(ctx: ServiceContext) -> int:
+    dep = ctx.deployment
+    run = dep.run
+    deputies = [d.name for d in dep.deputy]
+    names = ["chief", *deputies]
+    limits = np.array([d.attitude_limit for d in dep.deputy])
+    state = initial_states(dep)
+    craft, atmosphere = truth_craft(dep), truth_atmosphere(dep)
+    dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
+    per_step = round(fsw / dt)
+    counters = {
+        "steps": 0,
+        "late_commands": 0,
+        "missing_commands": 0,
+        "stale_commands": 0,
+        "clipped_commands": 0,
+        "bad_commands": 0,
+    }
+
+    inbox: queue.Queue = queue.Queue()
+    ctx.bus.subscribe("cmd/*/att", queue_handler(inbox), expected_schema="cmd")
+    ctx.ready()
+    others = [s for s in dep.services if s != ctx.name]
+    alive = wait_for_alive(ctx.bus.session, ctx.run, others, run.startup_timeout)
+    if set(others) - alive:
+        ctx.log(
+            "error",
+            f"services not alive after {run.startup_timeout} s: {sorted(set(others) - alive)}",
+        )
+        return 1
+
+    sigma = np.zeros((len(deputies), 3))  # commands in force
+    latest_for_t = dict.fromkeys(deputies, -math.inf)
+    wall0 = time.monotonic()
+
+    def publish_sample(t: float, step: int, X: np.ndarray, final: bool) -> None:
+        if run.mode == "realtime":
+            delay = wall0 + t / run.rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        # Hill-pointing chief; deputies Hill-pointing composed with their command
+        for i, sc in enumerate(names):
+            HN = hill_frame(X[i, :3], X[i, 3:])
+            BN = HN if i == 0 else mrp_to_dcm(sigma[i - 1]) @ HN
+            ctx.bus.publish(
+                f"truth/{sc}",
+                "truth",
+                {"sc": sc, "r_N": X[i, :3], "v_N": X[i, 3:], "sigma_BN": dcm_to_mrp(BN)},
+                t,
+            )
+        v, phase = exostate(dep, t)
+        ctx.bus.publish("exo/state", "exo", {"v": v, "phase": phase}, t)
+        ctx.bus.publish(
+            "clock",
+            "clock",
+            {"step": step, "dt": dt, "fsw": _on_grid(t, fsw), "mode": run.mode, "final": final},
+            t,
+        )
+
+    def take_commands(t_k: float, wait: bool) -> None:
+        """Apply the newest command of each deputy; in lock-step wait for those for t_k."""
+        deadline = time.monotonic() + run.command_deadline
+        while True:
+            missing = [sc for sc in deputies if latest_for_t[sc] < t_k - 1e-6]
+            if not missing or ctx.stop.is_set():
+                break
+            timeout = deadline - time.monotonic() if wait else 0.0
+            try:
+                _, msg = inbox.get(timeout=max(timeout, 0.0)) if wait else inbox.get_nowait()
+            except queue.Empty:
+                break
+            sc, s = msg.body["sc"], msg.body["sigma"]
+            if sc not in latest_for_t:
+                counters["bad_commands"] += 1
+                continue
+            for_t = msg.body["for_t"]
+            if for_t <= latest_for_t[sc]:
+                counters["stale_commands"] += 1  # older than what is in force: a replay
+                continue
+            if for_t < t_k - 1e-6:
+                counters["late_commands"] += 1
+            i = deputies.index(sc)
+            clipped = np.clip(s, -limits[i], limits[i])
+            counters["clipped_commands"] += int(np.any(clipped != s))
+            sigma[i] = clipped
+            latest_for_t[sc] = for_t
+        if wait:
+            counters["missing_commands"] += sum(latest_for_t[sc] < t_k - 1e-6 for sc in deputies)
+
+    step = 0
+    publish_sample(0.0, 0, state, final=t_end <= 0)
+    t_k = 0.0
+    while t_k < t_end - 1e-6 and not ctx.stop.is_set():
+        take_commands(t_k, wait=run.mode == "lockstep")
+        t_next = t_k + fsw
+        samples = t_k + dt * np.arange(1, per_step + 1)
+        attitudes = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
+        traj = propagate(
+            state,
+            t_k,
+            t_next,
+            attitudes,
+            craft,
+            atmosphere,
+            attitude_frame="hill",
+            j2=dep.environment.j2,
+            drag=dep.environment.drag,
+            t_eval=samples,
+            max_step=dep.environment.max_step,
+            rtol=dep.environment.rtol,
+        )
+        for k, t in enumerate(samples):
+            step += 1
+            publish_sample(float(t), step, traj[k], final=abs(t - t_end) < 1e-6)
+        state = traj[-1]
+        t_k = t_next
+        counters["steps"] += 1
+        if counters["steps"] % run.status_every == 0:
+            ctx.publish_stats(t_k, counters)
+    completed = t_k >= t_end - 1e-6
+    ctx.publish_stats(t_k, {**counters, "completed": int(completed)})
+    return 0 if completed else 3
+
+
+if __name__ == "__main__":
+    sys.exit(run_service(main, "environment"))

@@ -1,0 +1,92 @@
+"""The mission stepped in one process with no bus: the same truth, navigation and controller
+code as the services, called directly.  It is the baseline the distributed run is measured
+against (benchmarks) and a quick way to study the learner on truth data."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ddvi_core.orbit import hill_to_curvilinear, mrp_to_dcm, rv_to_hill
+from ddvi_core.truth import propagate
+from services.controller import Controller
+from services.deployment import Deployment
+from services.mission import (
+    IN_PLANE,
+    duration,
+    exostate,
+    initial_states,
+    truth_atmosphere,
+    truth_craft,
+)
+
+
+def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
+    """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
+    the controller object (final gains, phase) and its learning log lines."""
+    run = dep.run
+    dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
+    per_step = round(fsw / dt)
+    state = initial_states(dep)
+    craft, atm = truth_craft(dep), truth_atmosphere(dep)
+    ctrls = [Controller(dep, d.name) for d in dep.deputy]
+    rng = np.random.default_rng(noise_seed)
+    out = {d.name: {"t": [], "x": [], "u": [], "log": []} for d in dep.deputy}
+    sigma = np.zeros((len(ctrls), 3))
+
+    def sample(t: float, X: np.ndarray) -> None:
+        v, _ = exostate(dep, t)
+        for i, (d, c) in enumerate(zip(dep.deputy, ctrls, strict=True)):
+            x6 = hill_to_curvilinear(
+                X[0, :3], X[0, 3:], rv_to_hill(X[0, :3], X[0, 3:], X[i + 1, :3], X[i + 1, 3:])
+            )
+            nav = dep.deputy[i].navigation
+            k = t / nav.period
+            if abs(k - round(k)) > 1e-6:
+                continue
+            noisy = (
+                x6
+                + np.array(nav.position_bias + nav.velocity_bias)
+                + rng.normal(0, 1, 6)
+                * np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3)
+            )
+            x = noisy[list(IN_PLANE)]
+            kf = t / fsw
+            if abs(kf - round(kf)) < 1e-6:
+                if c.phase == "exploring" and t >= c.next_attempt - 1e-6:
+                    out[d.name]["log"].append(c.learn(t))
+                sigma[i] = [0.0, 0.0, c.command(t, x, v)]
+            if c.phase == "exploring":
+                c.collector.add(t, x, [c.u], v)
+            rec = out[d.name]
+            rec["t"].append(t)
+            rec["x"].append(x6)
+            rec["u"].append(c.u)
+
+    sample(0.0, state)
+    t_k = 0.0
+    while t_k < t_end - 1e-6:
+        samples = t_k + dt * np.arange(1, per_step + 1)
+        att = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
+        traj = propagate(
+            state,
+            t_k,
+            t_k + fsw,
+            att,
+            craft,
+            atm,
+            attitude_frame="hill",
+            j2=dep.environment.j2,
+            drag=dep.environment.drag,
+            t_eval=samples,
+            max_step=dep.environment.max_step,
+            rtol=dep.environment.rtol,
+        )
+        for k, t in enumerate(samples):
+            sample(float(t), traj[k])
+        state = traj[-1]
+        t_k += fsw
+    for d, c in zip(dep.deputy, ctrls, strict=True):
+        rec = out[d.name]
+        rec["t"], rec["x"], rec["u"] = (np.array(rec[k]) for k in ("t", "x", "u"))
+        rec["controller"] = c
+    return out

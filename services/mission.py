@@ -1,0 +1,121 @@
+"""The mission as the services see it: a deployment mapped onto ddvi_core's models.
+
+One place for what several services must agree on: the chief's mean motion, the exosystem
+(v = [1, cos u, sin u, cos 2u, sin 2u] with u = u0 + n t the chief's mean argument of latitude),
+the nominal linear model a deputy's controller is given, and the truth's initial states.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ddvi_core.constants import MU_EARTH
+from ddvi_core.lqr import solve_lqr
+from ddvi_core.models import DragRendezvous, harmonic_exosystem, rendezvous_problem
+from ddvi_core.orbit import elements_to_rv
+from ddvi_core.problem import RegulationProblem
+from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
+from ddvi_core.truth import Atmosphere, Spacecraft
+from services.deployment import Deployment, Deputy, Orbit
+
+IN_PLANE = (0, 1, 3, 4)  # [x, y, xdot, ydot] out of the Hill state [x, y, z, xdot, ydot, zdot]
+
+
+def mean_motion(dep: Deployment) -> float:
+    return math.sqrt(MU_EARTH / dep.chief.a**3)
+
+
+def orbit_period(dep: Deployment) -> float:
+    return 2.0 * math.pi / mean_motion(dep)
+
+
+def duration(dep: Deployment) -> float:
+    """Mission length in seconds, rounded down to whole flight-software steps."""
+    fsw = dep.run.fsw_period
+    return math.floor(dep.run.orbits * orbit_period(dep) / fsw + 1e-9) * fsw
+
+
+def exosystem_matrix(dep: Deployment) -> NDArray[np.float64]:
+    n = mean_motion(dep)
+    return harmonic_exosystem([n, 2 * n], constant=True)
+
+
+def exostate(dep: Deployment, t: float) -> tuple[NDArray[np.float64], float]:
+    """v(t) (5,) and the phase u(t) (rad): the exact solution of v' = E v."""
+    u = math.radians(dep.chief.argp + dep.chief.f) + mean_motion(dep) * t
+    return np.array([1.0, math.cos(u), math.sin(u), math.cos(2 * u), math.sin(2 * u)]), u
+
+
+def nominal_params(dep: Deployment, deputy: Deputy) -> DragRendezvous:
+    """What the deputy's controller is told about the plant: nominal, never the truth's
+    factors (density_factor, area_factor)."""
+    sc, atm = dep.spacecraft, dep.atmosphere
+    return DragRendezvous(
+        a_chief=dep.chief.a,
+        inclination=math.radians(dep.chief.i),
+        mass=sc.mass,
+        area=sc.area,
+        cd=sc.cd,
+        normal_angle=math.radians(sc.normal_angle),
+        rho0=atm.rho0,
+        h_ref=atm.h_ref,
+        scale_height=atm.scale_height,
+        j2=dep.environment.j2,
+        y_ref=deputy.y_ref,
+    )
+
+
+def nominal_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
+    return rendezvous_problem(nominal_params(dep, deputy))
+
+
+def lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
+    """K (1,4) and L (1,5) of the model-based baseline from the nominal model."""
+    pr = nominal_problem(dep, deputy)
+    K = solve_lqr(pr.A, pr.B, pr.Q, pr.R).K
+    X, U = solve_regulator_equations(pr.A, pr.B, pr.C, pr.D, pr.E, pr.F)
+    return K, feedforward_gain(K, X, U)
+
+
+def _rv(orbit: Orbit) -> NDArray[np.float64]:
+    r, v = elements_to_rv(
+        orbit.a,
+        orbit.e,
+        math.radians(orbit.i),
+        math.radians(orbit.raan),
+        math.radians(orbit.argp),
+        math.radians(orbit.f),
+    )
+    return np.concatenate([r, v])
+
+
+def initial_states(dep: Deployment) -> NDArray[np.float64]:
+    """(1 + N, 6) inertial states: the chief, then each deputy in deployment order."""
+    return np.array([_rv(dep.chief)] + [_rv(d.orbit) for d in dep.deputy])
+
+
+def truth_craft(dep: Deployment) -> list[Spacecraft]:
+    """The truth's spacecraft: the nominal design, each deputy's facet area times its
+    area_factor; facet normal in the body x-y plane."""
+    sc = dep.spacecraft
+    a = math.radians(sc.normal_angle)
+    normal = (math.cos(a), math.sin(a), 0.0)
+    craft = [Spacecraft(mass=sc.mass, area=sc.area, cd=sc.cd, normal_B=normal)]
+    for d in dep.deputy:
+        craft.append(
+            Spacecraft(mass=sc.mass, area=sc.area * d.area_factor, cd=sc.cd, normal_B=normal)
+        )
+    return craft
+
+
+def truth_atmosphere(dep: Deployment) -> Atmosphere:
+    atm = dep.atmosphere
+    return Atmosphere(
+        rho0=atm.rho0,
+        h_ref=atm.h_ref,
+        scale_height=atm.scale_height,
+        density_factor=dep.environment.density_factor,
+    )

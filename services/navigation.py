@@ -1,0 +1,76 @@
+"""Navigation service, one per deputy: what an on-board relative navigation filter publishes.
+
+Inputs:  truth/chief, truth/<deputy> (truth); clock.
+Outputs: nav/<deputy>/state (nav): the deputy's Hill-frame state relative to the chief,
+         [x, y, z, xdot, ydot, zdot], at the configured rate, with white noise and bias;
+         stats/nav-<deputy>.
+"""
+
+from __future__ import annotations
+
+import queue
+import sys
+
+import numpy as np
+
+from ddvi_core.orbit import rv_to_hill
+from services.bus import queue_handler
+from services.service import ServiceContext, run_service
+
+
+def main(ctx: ServiceContext) -> int:
+    sc = ctx.name.removeprefix("nav-")
+    deputy = ctx.deployment.deputy_named(sc)
+    cfg = deputy.navigation
+    rng = np.random.default_rng([ctx.deployment.run.seed, cfg.seed, sum(map(ord, sc))])
+    sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
+    bias = np.array(cfg.position_bias + cfg.velocity_bias)
+    inbox: queue.Queue = queue.Queue()
+    # one subscription for every craft: zenoh delivers each subscription on its own thread, so
+    # two subscriptions would interleave the chief's and the deputy's samples arbitrarily
+    ctx.bus.subscribe("truth/*", queue_handler(inbox), expected_schema="truth")
+    ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
+    ctx.ready()
+    pending: dict[float, dict[str, np.ndarray]] = {}
+    counters = {"published": 0, "unmatched": 0}
+    final_t: float | None = None
+    last_t = -1.0  # last published sample
+    last_pair = -1.0  # last sample for which both truths arrived
+    while not ctx.stop.is_set():
+        try:
+            _, msg = inbox.get(timeout=0.5)
+        except queue.Empty:
+            continue
+        if msg.schema == "clock":
+            if msg.body["final"]:
+                final_t = msg.t
+        elif msg.body["sc"] in ("chief", sc):
+            slot = pending.setdefault(msg.t, {})
+            slot[msg.body["sc"]] = np.concatenate([msg.body["r_N"], msg.body["v_N"]])
+            if "chief" in slot and sc in slot:
+                del pending[msg.t]
+                last_pair = max(last_pair, msg.t)
+                k = msg.t / cfg.period
+                if abs(k - round(k)) < 1e-6 and msg.t > last_t:
+                    c, d = slot["chief"], slot[sc]
+                    x = rv_to_hill(c[:3], c[3:], d[:3], d[3:]) + bias
+                    if sigma.any():
+                        x = x + rng.normal(0.0, 1.0, 6) * sigma
+                    ctx.bus.publish(
+                        f"nav/{sc}/state", "nav", {"sc": sc, "x_hill": x, "valid": True}, msg.t
+                    )
+                    counters["published"] += 1
+                    last_t = msg.t
+            # a half pair well behind the newest sample will never complete (a lost message)
+            horizon = msg.t - 10 * ctx.deployment.run.nav_period
+            for t in [t for t in pending if t < horizon]:
+                del pending[t]
+                counters["unmatched"] += 1
+        if final_t is not None and last_pair >= final_t - 1e-6:
+            break
+    ctx.publish_stats(last_t, counters)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_service(main, "nav"))

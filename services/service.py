@@ -1,0 +1,107 @@
+"""What every service process shares: its command line, its session, its bus, its shutdown.
+
+A service is started by the launcher as ``python -m services.<module> --deployment FILE
+--run RUN --hub ENDPOINT [--name NAME] [--out DIR]``.  ``run_service`` opens the zenoh session
+(always closed, whatever happens), builds the Bus, turns SIGTERM/SIGINT into a stop request,
+runs the service's main loop, publishes its final counters and returns an exit status.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 2 cores: BLAS threads would fight services
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from services.bus import Bus, BusSettings, open_session
+from services.deployment import Deployment, DeploymentError, load_deployment
+
+log = logging.getLogger("ddvi")
+
+
+@dataclass
+class ServiceContext:
+    """Handed to a service's main function."""
+
+    deployment: Deployment
+    run: str
+    name: str
+    bus: Bus
+    stop: threading.Event  # set by SIGTERM/SIGINT: finish the current step and return
+    out: str  # the run's output folder
+
+    def ready(self) -> None:
+        """Declare the liveliness token: call once every subscription is declared, so that a
+        service seen alive never misses a message addressed to it."""
+        self.bus.declare_alive()
+
+    def publish_stats(self, t: float, extra: dict[str, int] | None = None) -> None:
+        counters = dict(self.bus.counters)
+        counters.update(extra or {})
+        self.bus.publish(
+            f"stats/{self.name}", "stats", {"service": self.name, "counters": counters}, t
+        )
+
+    def log(self, level: str, text: str, t: float = 0.0) -> None:
+        getattr(log, level if level in ("info", "warning", "error") else "info")(text)
+        try:
+            self.bus.publish(
+                f"log/{self.name}",
+                "log",
+                {"service": self.name, "level": level, "text": text[:2000]},
+                t,
+            )
+        except Exception:  # logging must never take a service down
+            log.exception("could not publish a log message")
+
+
+def bus_settings(dep: Deployment, hub: str) -> BusSettings:
+    connect = [hub, *dep.bus.connect]
+    if dep.bus.mode == "client":
+        return BusSettings(mode="client", listen=[], connect=connect)
+    return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
+
+
+def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog=f"services.{default_name}")
+    ap.add_argument("--deployment", required=True)
+    ap.add_argument("--run", required=True)
+    ap.add_argument("--hub", required=True, help="zenoh endpoint of the run's hub")
+    ap.add_argument("--name", default=default_name, help="service name")
+    ap.add_argument("--out", default=".", help="the run's output folder")
+    return ap.parse_args(argv)
+
+
+def run_service(
+    main: Callable[[ServiceContext], int], default_name: str, argv: list[str] | None = None
+) -> int:
+    args = parse_args(argv, default_name)
+    logging.basicConfig(
+        level=logging.INFO,
+        stream=sys.stderr,
+        format=f"%(asctime)s {args.name} %(levelname)s %(message)s",
+    )
+    try:
+        dep = load_deployment(args.deployment)
+    except DeploymentError as exc:
+        print(f"{args.name}: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    with open_session(bus_settings(dep, args.hub)) as session:
+        bus = Bus(session, args.run, args.name)
+        try:
+            ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out)
+            status = main(ctx)
+            bus.declare_alive()  # no-op if the service declared itself ready
+            return status
+        finally:
+            bus.close()
