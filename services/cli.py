@@ -165,10 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("monitor", help="print decoded messages of a running deployment")
-    p.add_argument("keyexpr", nargs="?", default="ddvi/**")
-    p.add_argument("--hub", default="tcp/127.0.0.1:7447", help="a running deployment's hub")
-    p.add_argument("--count", type=int, default=None, help="stop after N messages")
-    p.add_argument("--seconds", type=float, default=None, help="stop after S seconds")
+    from services.monitor import add_monitor_arguments
+
+    add_monitor_arguments(p)
     p.set_defaults(func=cmd_monitor)
     return parser
 

@@ -94,11 +94,11 @@ class Controller:
                 state_scale=[1.0, 1.0, n, n],
             )
         except LearningError as exc:
-            self.next_attempt = t + lrn.interval
+            self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
             return f"learning at t = {t:.0f} s failed, exploring on: {exc}"
         self.rank, self.rank_needed = r.rank, r.rank_needed
         if not r.converged:
-            self.next_attempt = t + lrn.interval
+            self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
             return f"learning at t = {t:.0f} s did not converge ({r.message}), exploring on"
         self.K, self.L = r.K, r.L
         self.phase, self.source = "learned", "ddvi"

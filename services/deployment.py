@@ -106,6 +106,7 @@ class Navigation:
 @dataclass(frozen=True)
 class Learning:
     learn_at_orbits: float = 15.0  # when to learn and switch gains
+    retry_orbits: float = 1.0  # after a failed attempt, explore on and try again this much later
     interval: float = 600.0  # s per data interval
     exploration_amplitude: float = 0.1  # rad (MRP) of the multi-sine
     exploration_frequencies: list[float] = field(default_factory=list)  # rad/s; [] = spread

@@ -1,8 +1,10 @@
 """Navigation service, one per deputy: what an on-board relative navigation filter publishes.
 
 Inputs:  truth/chief, truth/<deputy> (truth); clock.
-Outputs: nav/<deputy>/state (nav): the deputy's Hill-frame state relative to the chief,
-         [x, y, z, xdot, ydot, zdot], at the configured rate, with white noise and bias;
+Outputs: nav/<deputy>/state (nav): the deputy's curvilinear Hill state relative to the chief,
+         [x, y, z, xdot, ydot, zdot] (radial separation, along- and cross-track arc lengths,
+         their rates; ddvi_core.orbit.hill_to_curvilinear), at the configured rate, with white
+         noise and bias;
          stats/nav-<deputy>.
 """
 
@@ -13,7 +15,7 @@ import sys
 
 import numpy as np
 
-from ddvi_core.orbit import rv_to_hill
+from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
 from services.bus import queue_handler
 from services.service import ServiceContext, run_service
 
@@ -53,7 +55,8 @@ def main(ctx: ServiceContext) -> int:
                 k = msg.t / cfg.period
                 if abs(k - round(k)) < 1e-6 and msg.t > last_t:
                     c, d = slot["chief"], slot[sc]
-                    x = rv_to_hill(c[:3], c[3:], d[:3], d[3:]) + bias
+                    hill = rv_to_hill(c[:3], c[3:], d[:3], d[3:])
+                    x = hill_to_curvilinear(c[:3], c[3:], hill) + bias
                     if sigma.any():
                         x = x + rng.normal(0.0, 1.0, 6) * sigma
                     ctx.bus.publish(

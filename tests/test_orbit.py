@@ -276,3 +276,29 @@ def test_hill_pointing_and_body_dcm() -> None:
     stack = body_dcm(np.stack([rc, rd]), np.stack([vc, vd]), np.stack([np.zeros(3), rel]))
     assert stack.shape == (2, 3, 3)
     np.testing.assert_allclose(stack[1], mrp_to_dcm(rel) @ hill_frame(rd, vd), atol=1e-15)
+
+
+def test_curvilinear_hill_state_of_a_pure_phase_offset() -> None:
+    """Same circular orbit, 0.01 rad behind: rectilinear x is the chord's sag (-r(1-cos)),
+    curvilinear x is exactly zero and y is the arc length."""
+    from ddvi_core.orbit import hill_to_curvilinear
+
+    a = 6678136.0
+    r1, v1 = elements_to_rv(a, 0.0, 0.7, 0.3, 0.5, 0.2)
+    r2, v2 = elements_to_rv(a, 0.0, 0.7, 0.3, 0.5, 0.19)
+    rect = rv_to_hill(r1, v1, r2, v2)
+    curv = hill_to_curvilinear(r1, v1, rect)
+    assert rect[0] == pytest.approx(-a * (1 - np.cos(0.01)), rel=1e-6)
+    np.testing.assert_allclose(curv[:3], [0.0, -0.01 * a, 0.0], atol=1e-6)
+    np.testing.assert_allclose(curv[3:], 0.0, atol=1e-9)
+
+
+def test_curvilinear_matches_rectilinear_for_close_deputies() -> None:
+    from ddvi_core.orbit import hill_to_curvilinear
+
+    r1, v1 = elements_to_rv(6678136.0, 0.0, 0.7, 0.3, 0.5, 0.2)
+    r2, v2 = elements_to_rv(6678236.0, 0.0, 0.7, 0.3, 0.5, 0.20001)
+    rect = rv_to_hill(r1, v1, r2, v2)
+    curv = hill_to_curvilinear(r1, v1, rect)
+    # second-order differences only: (67 m)^2 / 2r is 3e-4 m
+    assert np.all(np.abs(curv - rect) <= np.array([1e-2, 1e-2, 1e-2, 1e-5, 1e-5, 1e-5]))

@@ -1,0 +1,122 @@
+"""End to end: a short deployment, every service a real process on a real Zenoh bus, through
+`ddvi run`; assertions on the run's summary.json and recording."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from services.deployment import DeploymentError, deployment_from_table, load_deployment
+
+SHORT = """
+[run]
+name = "it"
+orbits = 1.5
+command_deadline = 20.0
+[[deputy]]
+name = "lqr"
+controller = "lqr"
+[[deputy]]
+name = "ddvi"
+controller = "ddvi"
+learning = { learn_at_orbits = 1.0, interval = 120.0 }
+"""
+
+
+@pytest.mark.integration
+def test_short_mission_end_to_end(tmp_path: Path) -> None:
+    dep = tmp_path / "short.toml"
+    dep.write_text(SHORT)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "run",
+            str(dep),
+            "--output",
+            str(tmp_path / "runs"),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=110,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = Path(r.stdout.strip().splitlines()[-1])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] is True
+    assert set(summary["deputies"]) == {"lqr", "ddvi"}
+    lqr = summary["deputies"]["lqr"]
+    # the deputy starts 29.1 km behind the chief; it is still far, but it is the truth's number
+    assert 20_000 < lqr["final_along_track_error_m"] < 40_000
+    totals = summary["messages"]["totals"]
+    assert totals["rejected"] == 0 and totals["late"] == 0 and totals["dropped"] == 0
+    # 1.5 orbits of 10 s samples: truth for 3 craft, exo and clock at each, all recorded
+    samples = int(1.5 * 5431.18 / 60) * 6 + 1
+    assert summary["messages"]["recorded"] >= 5 * samples
+    assert (out / "recording.mcap").stat().st_size > 0
+    for name in (
+        "hill_x.png",
+        "hill_y.png",
+        "hill_xy.png",
+        "sigma3.png",
+        "gains.png",
+        "timeseries.csv",
+    ):
+        assert (out / name).is_file(), name
+    log = (out / "logs" / "ctrl-ddvi.log").read_text()
+    # the learner ran at the first flight-software step after one orbit (5431 s)
+    assert "learning at t = 5460 s" in log
+
+
+def test_default_deployment_loads() -> None:
+    dep = load_deployment(None)
+    assert dep.services == [
+        "monitor",
+        "nav-lqr",
+        "ctrl-lqr",
+        "nav-ddvi",
+        "ctrl-ddvi",
+        "environment",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("table", "needle"),
+    [
+        (
+            {"run": {"orbtis": 3}, "deputy": [{"name": "a"}]},
+            "run.orbtis: unknown key (did you mean 'orbits'?)",
+        ),
+        ({"run": {"orbits": "3"}, "deputy": [{"name": "a"}]}, "run.orbits: expected a number"),
+        ({"deputy": [{"name": "a", "controller": "pid"}]}, "deputy[0].controller"),
+        ({"deputy": [{"name": "a"}, {"name": "a"}]}, "used twice"),
+        ({}, "at least one [[deputy]]"),
+        ({"deputy": [{"name": "a", "navigation": {"period": 7.0}}]}, "navigation.period"),
+        (
+            {"deputy": [{"name": "a", "learning": {"exploration_amplitude": 0.5}}]},
+            "exploration_amplitude",
+        ),
+    ],
+)
+def test_bad_deployment_names_the_key(table: dict, needle: str) -> None:
+    with pytest.raises(DeploymentError, match=None) as exc:
+        deployment_from_table(table)
+    assert needle in str(exc.value)
+
+
+def test_bad_deployment_file_exits_2(tmp_path: Path) -> None:
+    p = tmp_path / "bad.toml"
+    p.write_text('[run]\nmode = "fast"\n[[deputy]]\nname = "a"\n')
+    r = subprocess.run(
+        [sys.executable, "-m", "services.cli", "run", str(p)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2 and "run.mode" in r.stderr and "Traceback" not in r.stderr
