@@ -22,9 +22,15 @@ import time
 import numpy as np
 
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
-from ddvi_core.truth import propagate
 from services.bus import queue_handler, wait_for_alive
-from services.mission import duration, exostate, initial_states, truth_atmosphere, truth_craft
+from services.mission import (
+    duration,
+    exostate,
+    initial_states,
+    truth_atmosphere,
+    truth_craft,
+    truth_step,
+)
 from services.service import ServiceContext, run_service
 
 
@@ -42,7 +48,6 @@ def main(ctx: ServiceContext) -> int:
     state = initial_states(dep)
     craft, atmosphere = truth_craft(dep), truth_atmosphere(dep)
     dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
-    per_step = round(fsw / dt)
     counters = {
         "steps": 0,
         "late_commands": 0,
@@ -128,22 +133,7 @@ def main(ctx: ServiceContext) -> int:
     while t_k < t_end - 1e-6 and not ctx.stop.is_set():
         take_commands(t_k, wait=run.mode == "lockstep")
         t_next = t_k + fsw
-        samples = t_k + dt * np.arange(1, per_step + 1)
-        attitudes = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
-        traj = propagate(
-            state,
-            t_k,
-            t_next,
-            attitudes,
-            craft,
-            atmosphere,
-            attitude_frame="hill",
-            j2=dep.environment.j2,
-            drag=dep.environment.drag,
-            t_eval=samples,
-            max_step=dep.environment.max_step,
-            rtol=dep.environment.rtol,
-        )
+        samples, traj = truth_step(dep, state, t_k, sigma, craft, atmosphere)
         for k, t in enumerate(samples):
             step += 1
             publish_sample(float(t), step, traj[k], final=abs(t - t_end) < 1e-6)

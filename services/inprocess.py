@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ddvi_core.orbit import hill_to_curvilinear, mrp_to_dcm, rv_to_hill
-from ddvi_core.truth import propagate
+from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
 from services.controller import Controller
 from services.deployment import Deployment
 from services.mission import (
@@ -17,6 +16,7 @@ from services.mission import (
     initial_states,
     truth_atmosphere,
     truth_craft,
+    truth_step,
 )
 
 
@@ -24,8 +24,7 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
     the controller object (final gains, phase) and its learning log lines."""
     run = dep.run
-    dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
-    per_step = round(fsw / dt)
+    fsw, t_end = run.fsw_period, duration(dep)
     state = initial_states(dep)
     craft, atm = truth_craft(dep), truth_atmosphere(dep)
     ctrls = [Controller(dep, d.name) for d in dep.deputy]
@@ -65,22 +64,7 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     sample(0.0, state)
     t_k = 0.0
     while t_k < t_end - 1e-6:
-        samples = t_k + dt * np.arange(1, per_step + 1)
-        att = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
-        traj = propagate(
-            state,
-            t_k,
-            t_k + fsw,
-            att,
-            craft,
-            atm,
-            attitude_frame="hill",
-            j2=dep.environment.j2,
-            drag=dep.environment.drag,
-            t_eval=samples,
-            max_step=dep.environment.max_step,
-            rtol=dep.environment.rtol,
-        )
+        samples, traj = truth_step(dep, state, t_k, sigma, craft, atm)
         for k, t in enumerate(samples):
             sample(float(t), traj[k])
         state = traj[-1]

@@ -15,10 +15,10 @@ from numpy.typing import NDArray
 from ddvi_core.constants import MU_EARTH
 from ddvi_core.lqr import solve_lqr
 from ddvi_core.models import DragRendezvous, harmonic_exosystem, rendezvous_problem
-from ddvi_core.orbit import elements_to_rv
+from ddvi_core.orbit import elements_to_rv, mrp_to_dcm
 from ddvi_core.problem import RegulationProblem
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
-from ddvi_core.truth import Atmosphere, Spacecraft
+from ddvi_core.truth import Atmosphere, Spacecraft, propagate
 from services.deployment import Deployment, Deputy, Orbit
 
 IN_PLANE = (0, 1, 3, 4)  # [x, y, xdot, ydot] out of the Hill state [x, y, z, xdot, ydot, zdot]
@@ -119,3 +119,35 @@ def truth_atmosphere(dep: Deployment) -> Atmosphere:
         scale_height=atm.scale_height,
         density_factor=dep.environment.density_factor,
     )
+
+
+def truth_step(
+    dep: Deployment,
+    state: NDArray,
+    t_k: float,
+    sigma: NDArray,
+    craft: list[Spacecraft],
+    atmosphere: Atmosphere,
+) -> tuple[NDArray, NDArray]:
+    """Propagate the truth over one flight-software step from t_k with each deputy's relative
+    MRP ``sigma`` (N, 3) held (chief Hill-pointing).  Returns the navigation sample times
+    (K,) in (t_k, t_k + fsw] and the states there (K, 1 + N, 6)."""
+    run = dep.run
+    samples = t_k + run.nav_period * np.arange(1, round(run.fsw_period / run.nav_period) + 1)
+    attitudes = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
+    env = dep.environment
+    traj = propagate(
+        state,
+        t_k,
+        t_k + run.fsw_period,
+        attitudes,
+        craft,
+        atmosphere,
+        attitude_frame="hill",
+        j2=env.j2,
+        drag=env.drag,
+        t_eval=samples,
+        max_step=env.max_step,
+        rtol=env.rtol,
+    )
+    return samples, traj
