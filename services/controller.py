@@ -18,6 +18,7 @@ from __future__ import annotations
 import queue
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,8 +27,25 @@ from ddvi_core.simulate import Exploration
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.bus import queue_handler
 from services.deployment import Deployment
-from services.mission import IN_PLANE, lqr_gains, mean_motion, nominal_problem, orbit_period
+from services.mission import (
+    IN_PLANE,
+    lqr_gains,
+    mean_motion,
+    nominal_problem,
+    on_grid,
+    orbit_period,
+)
 from services.service import ServiceContext, run_service
+
+
+@dataclass
+class SampleOutcome:
+    """What one navigation sample did: a flight-software step (a new command in
+    ``Controller.u``), a learning attempt (its log line), a sample the collector refused."""
+
+    fsw: bool
+    learn_log: str | None = None
+    rejected: str | None = None
 
 
 class Controller:
@@ -72,6 +90,23 @@ class Controller:
             u = float((-self.K @ x + self.L @ v)[0])
         self.u = float(np.clip(u, -self.limit, self.limit))
         return self.u
+
+    def on_sample(self, t: float, x: np.ndarray, v: np.ndarray) -> SampleOutcome:
+        """One navigation sample, in time order: on a flight-software step, learn if it is
+        time to, then compute the command (``self.u``); while exploring, feed the collector
+        with the input in force from t on.  The service publishes; the in-process baseline
+        does not: both run exactly this."""
+        outcome = SampleOutcome(fsw=on_grid(t, self.fsw))
+        if outcome.fsw:
+            if self.phase == "exploring" and t >= self.next_attempt - 1e-6:
+                outcome.learn_log = self.learn(t)
+            self.command(t, x, v)
+        if self.phase == "exploring":
+            try:
+                self.collector.add(t, x, [self.u], v)
+            except LearningError as exc:
+                outcome.rejected = f"sample at t = {t} rejected: {exc}"
+        return outcome
 
     def learn(self, t: float) -> str:
         """Run data-driven value iteration on the data so far; switch gains on success."""
@@ -185,13 +220,13 @@ def main(ctx: ServiceContext) -> int:
                 counters["samples_rejected"] += 1  # stale or replayed
                 continue
             last_t = t
-            k = t / ctrl.fsw
-            if abs(k - round(k)) < 1e-6:  # a flight-software step
-                if ctrl.phase == "exploring" and t >= ctrl.next_attempt - 1e-6:
-                    counters["learn_attempts"] += 1
-                    ctx.log("info", ctrl.learn(t), t)
-                    publish_gains(t)
-                u = ctrl.command(t, x, v)
+            outcome = ctrl.on_sample(t, x, v)
+            if outcome.learn_log is not None:
+                counters["learn_attempts"] += 1
+                ctx.log("info", outcome.learn_log, t)
+                publish_gains(t)
+            if outcome.fsw:
+                u = ctrl.u
                 ctx.bus.publish(
                     f"cmd/{sc}/att", "cmd", {"sc": sc, "sigma": [0.0, 0.0, u], "for_t": t}, t
                 )
@@ -202,12 +237,9 @@ def main(ctx: ServiceContext) -> int:
                 if steps % run.status_every == 0:
                     publish_status(t)
                     ctx.publish_stats(t, counters)
-            if ctrl.phase == "exploring":
-                try:
-                    ctrl.collector.add(t, x, [ctrl.u], v)
-                except LearningError as exc:
-                    counters["samples_rejected"] += 1
-                    ctx.log("warning", f"sample at t = {t} rejected: {exc}", t)
+            if outcome.rejected is not None:
+                counters["samples_rejected"] += 1
+                ctx.log("warning", outcome.rejected, t)
         # forget exostates that no navigation sample will claim
         for t in [t for t in exo if t < last_t]:
             del exo[t]

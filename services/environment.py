@@ -27,16 +27,12 @@ from services.mission import (
     duration,
     exostate,
     initial_states,
+    on_grid,
     truth_atmosphere,
     truth_craft,
     truth_step,
 )
 from services.service import ServiceContext, run_service
-
-
-def _on_grid(t: float, period: float) -> bool:
-    k = t / period
-    return abs(k - round(k)) < 1e-6
 
 
 def main(ctx: ServiceContext) -> int:
@@ -93,7 +89,7 @@ def main(ctx: ServiceContext) -> int:
         ctx.bus.publish(
             "clock",
             "clock",
-            {"step": step, "dt": dt, "fsw": _on_grid(t, fsw), "mode": run.mode, "final": final},
+            {"step": step, "dt": dt, "fsw": on_grid(t, fsw), "mode": run.mode, "final": final},
             t,
         )
 

@@ -14,6 +14,7 @@ from services.mission import (
     duration,
     exostate,
     initial_states,
+    on_grid,
     truth_atmosphere,
     truth_craft,
     truth_step,
@@ -39,8 +40,7 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
                 X[0, :3], X[0, 3:], rv_to_hill(X[0, :3], X[0, 3:], X[i + 1, :3], X[i + 1, 3:])
             )
             nav = dep.deputy[i].navigation
-            k = t / nav.period
-            if abs(k - round(k)) > 1e-6:
+            if not on_grid(t, nav.period):
                 continue
             noisy = (
                 x6
@@ -48,14 +48,11 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
                 + rng.normal(0, 1, 6)
                 * np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3)
             )
-            x = noisy[list(IN_PLANE)]
-            kf = t / fsw
-            if abs(kf - round(kf)) < 1e-6:
-                if c.phase == "exploring" and t >= c.next_attempt - 1e-6:
-                    out[d.name]["log"].append(c.learn(t))
-                sigma[i] = [0.0, 0.0, c.command(t, x, v)]
-            if c.phase == "exploring":
-                c.collector.add(t, x, [c.u], v)
+            outcome = c.on_sample(t, noisy[list(IN_PLANE)], v)
+            if outcome.learn_log is not None:
+                out[d.name]["log"].append(outcome.learn_log)
+            if outcome.fsw:
+                sigma[i] = [0.0, 0.0, c.u]
             rec = out[d.name]
             rec["t"].append(t)
             rec["x"].append(x6)

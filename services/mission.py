@@ -24,6 +24,13 @@ from services.deployment import Deployment, Deputy, Orbit
 IN_PLANE = (0, 1, 3, 4)  # [x, y, xdot, ydot] out of the Hill state [x, y, z, xdot, ydot, zdot]
 
 
+def on_grid(t: float, period: float) -> bool:
+    """Whether time t (s) falls on the grid of ``period`` (a navigation or flight-software
+    step), to a tolerance far below any step."""
+    k = t / period
+    return abs(k - round(k)) < 1e-6
+
+
 def mean_motion(dep: Deployment) -> float:
     return math.sqrt(MU_EARTH / dep.chief.a**3)
 

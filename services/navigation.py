@@ -17,6 +17,7 @@ import numpy as np
 
 from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
 from services.bus import queue_handler
+from services.mission import on_grid
 from services.service import ServiceContext, run_service
 
 
@@ -52,8 +53,7 @@ def main(ctx: ServiceContext) -> int:
             if "chief" in slot and sc in slot:
                 del pending[msg.t]
                 last_pair = max(last_pair, msg.t)
-                k = msg.t / cfg.period
-                if abs(k - round(k)) < 1e-6 and msg.t > last_t:
+                if on_grid(msg.t, cfg.period) and msg.t > last_t:
                     c, d = slot["chief"], slot[sc]
                     hill = rv_to_hill(c[:3], c[3:], d[:3], d[3:])
                     x = hill_to_curvilinear(c[:3], c[3:], hill) + bias

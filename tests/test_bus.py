@@ -5,7 +5,6 @@ from __future__ import annotations
 import itertools
 import json
 import queue
-import socket
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -24,17 +23,12 @@ from services.bus import (
     wait_for_alive,
     zenoh_config,
 )
+from services.launcher import free_port
 from services.links import LinkModel, LinkSpec
 from services.schema import MAX_PAYLOAD, Message, MessageError, encode
 
 TIMEOUT = 5.0
 _runs = itertools.count()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = TIMEOUT) -> bool:

@@ -29,13 +29,22 @@ def _rel(a, b) -> float:
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
-def _collect(prob, x0, v0, *, amplitude, sample, command, interval, duration,
-             max_intervals=100_000):
+def _collect(
+    prob, x0, v0, *, amplitude, sample, command, interval, duration, max_intervals=100_000
+):
     col = IntervalCollector(prob.n, prob.m, prob.q, interval, max_intervals=max_intervals)
     for t, x, u, v in simulate_zoh(
-        prob.A, prob.B, prob.D, prob.E, x0, v0, K0=np.zeros((prob.m, prob.n)),
+        prob.A,
+        prob.B,
+        prob.D,
+        prob.E,
+        x0,
+        v0,
+        K0=np.zeros((prob.m, prob.n)),
         exploration=Exploration.spread(amplitude, N_RATE, 6, seed=1),
-        sample_period=sample, command_period=command, duration=duration,
+        sample_period=sample,
+        command_period=command,
+        duration=duration,
     ):
         col.add(t, x, u, v)
     return col
@@ -45,12 +54,27 @@ def _collect(prob, x0, v0, *, amplitude, sample, command, interval, duration,
 @pytest.fixture(scope="module")
 def thrust():
     prob = models.thrust_rendezvous_problem()
-    col = _collect(prob, [100.0, -200.0, 50.0, 0.0, 0.0, 0.0], [1, 0, 1, 0, 1, 0, 1, 0],
-                   amplitude=1e-3, sample=2.0, command=60.0, interval=600.0,
-                   duration=200 * 600.0, max_intervals=200)
+    col = _collect(
+        prob,
+        [100.0, -200.0, 50.0, 0.0, 0.0, 0.0],
+        [1, 0, 1, 0, 1, 0, 1, 0],
+        amplitude=1e-3,
+        sample=2.0,
+        command=60.0,
+        interval=600.0,
+        duration=200 * 600.0,
+        max_intervals=200,
+    )
     res = learn_from_data(
-        col.data(), prob.Q, prob.R, time_unit=N_RATE, C=prob.C, E=prob.E, F=prob.F,
-        steps=StepSequence("constant", 0.02), bounds=BoundSchedule("geometric"),
+        col.data(),
+        prob.Q,
+        prob.R,
+        time_unit=N_RATE,
+        C=prob.C,
+        E=prob.E,
+        F=prob.F,
+        steps=StepSequence("constant", 0.02),
+        bounds=BoundSchedule("geometric"),
         state_scale=[1, 1, 1, N_RATE, N_RATE, N_RATE],
     )
     return prob, col, res
@@ -93,7 +117,7 @@ def test_thrust_closed_loop_tracks(thrust) -> None:
     for _ in range(int(30 * ORBIT / h)):  # 0.055 n * 30 orbits = 10 e-foldings
         z = Phi @ z
         errs.append(np.linalg.norm(prob.C @ z[:6] + prob.F @ z[6:]))
-    last_orbit = errs[-int(ORBIT / h):]
+    last_orbit = errs[-int(ORBIT / h) :]
     assert max(last_orbit) < 1e-3 * e0
     # the reference itself keeps moving (the error falls, not the state)
     assert np.linalg.norm(z[:3]) > 50.0
@@ -107,11 +131,26 @@ DRAG_V0 = [1.0, math.cos(U0), math.sin(U0), math.cos(2 * U0), math.sin(2 * U0)]
 
 def test_drag_rendezvous_learns_K() -> None:
     prob = models.rendezvous_problem()
-    col = _collect(prob, DRAG_X0, DRAG_V0, amplitude=0.1, sample=10.0, command=60.0,
-                   interval=600.0, duration=15 * ORBIT)
+    col = _collect(
+        prob,
+        DRAG_X0,
+        DRAG_V0,
+        amplitude=0.1,
+        sample=10.0,
+        command=60.0,
+        interval=600.0,
+        duration=15 * ORBIT,
+    )
     res = learn_from_data(
-        col.data(), prob.Q, prob.R, time_unit=N_RATE, C=prob.C, E=prob.E, F=prob.F,
-        steps=StepSequence("constant", 0.01), bounds=BoundSchedule("geometric"),
+        col.data(),
+        prob.Q,
+        prob.R,
+        time_unit=N_RATE,
+        C=prob.C,
+        E=prob.E,
+        F=prob.F,
+        steps=StepSequence("constant", 0.01),
+        bounds=BoundSchedule("geometric"),
         state_scale=[1, 1, N_RATE, N_RATE],
     )
     K_star = solve_lqr(prob.A, prob.B, prob.Q, prob.R).K
@@ -125,12 +164,28 @@ def test_drag_rendezvous_learns_K() -> None:
 
 def test_no_exploration_is_rank_deficient() -> None:
     prob = models.rendezvous_problem()
-    col = _collect(prob, DRAG_X0, DRAG_V0, amplitude=0.0, sample=10.0, command=60.0,
-                   interval=600.0, duration=15 * ORBIT)
+    col = _collect(
+        prob,
+        DRAG_X0,
+        DRAG_V0,
+        amplitude=0.0,
+        sample=10.0,
+        command=60.0,
+        interval=600.0,
+        duration=15 * ORBIT,
+    )
     assert col.intervals >= 34
     with pytest.raises(RankDeficientError) as exc:
-        learn_from_data(col.data(), prob.Q, prob.R, time_unit=N_RATE, C=prob.C, E=prob.E,
-                        F=prob.F, state_scale=[1, 1, N_RATE, N_RATE])
+        learn_from_data(
+            col.data(),
+            prob.Q,
+            prob.R,
+            time_unit=N_RATE,
+            C=prob.C,
+            E=prob.E,
+            F=prob.F,
+            state_scale=[1, 1, N_RATE, N_RATE],
+        )
     err = exc.value
     assert err.rank < err.needed == 34
     assert "input terms" in err.report and "exploration" in err.report
@@ -139,12 +194,28 @@ def test_no_exploration_is_rank_deficient() -> None:
 
 def test_too_few_intervals_reports_how_many() -> None:
     prob = models.rendezvous_problem()
-    col = _collect(prob, DRAG_X0, DRAG_V0, amplitude=0.1, sample=10.0, command=60.0,
-                   interval=600.0, duration=20 * 600.0)
+    col = _collect(
+        prob,
+        DRAG_X0,
+        DRAG_V0,
+        amplitude=0.1,
+        sample=10.0,
+        command=60.0,
+        interval=600.0,
+        duration=20 * 600.0,
+    )
     assert col.intervals == 20
     with pytest.raises(RankDeficientError) as exc:
-        learn_from_data(col.data(), prob.Q, prob.R, time_unit=N_RATE, C=prob.C, E=prob.E,
-                        F=prob.F, state_scale=[1, 1, N_RATE, N_RATE])
+        learn_from_data(
+            col.data(),
+            prob.Q,
+            prob.R,
+            time_unit=N_RATE,
+            C=prob.C,
+            E=prob.E,
+            F=prob.F,
+            state_scale=[1, 1, N_RATE, N_RATE],
+        )
     assert "only 20 intervals" in exc.value.report and "at least 34" in exc.value.report
     assert exc.value.rank <= 20 < exc.value.needed
 
@@ -190,8 +261,9 @@ def test_collector_memory_independent_of_samples() -> None:
         for t in np.arange(0.0, 1000.0 + dt / 2, dt):
             col.add(t, [math.sin(1e-3 * t), 1.0], [0.5], [1.0])
         assert col.intervals == 1
-        stores.append((_array_bytes(col), {k: len(v) for k, v in vars(col).items()
-                                           if isinstance(v, list)}))
+        stores.append(
+            (_array_bytes(col), {k: len(v) for k, v in vars(col).items() if isinstance(v, list)})
+        )
     assert stores[0] == stores[1]
     assert all(n == 1 for n in stores[0][1].values())
 
@@ -286,9 +358,19 @@ def test_learner_without_exosystem() -> None:
     A = np.array([[0.0, 1.0], [-1.0, -0.5]])
     B = np.array([[0.0], [1.0]])
     col = IntervalCollector(2, 1, 0, 5.0)
-    for t, x, u, v in simulate_zoh(A, B, None, None, [1.0, 0.0], None, K0=np.zeros((1, 2)),
-                                   exploration=Exploration.spread(1.0, 1.0, 6, seed=2),
-                                   sample_period=0.01, command_period=0.01, duration=200.0):
+    for t, x, u, v in simulate_zoh(
+        A,
+        B,
+        None,
+        None,
+        [1.0, 0.0],
+        None,
+        K0=np.zeros((1, 2)),
+        exploration=Exploration.spread(1.0, 1.0, 6, seed=2),
+        sample_period=0.01,
+        command_period=0.01,
+        duration=200.0,
+    ):
         col.add(t, x, u, v)
     res = learn_from_data(col.data(), np.eye(2), np.eye(1), time_unit=1.0)
     K_star = solve_lqr(A, B, np.eye(2), np.eye(1)).K

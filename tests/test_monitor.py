@@ -10,7 +10,6 @@ import math
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -30,6 +29,7 @@ from ddvi_core.constants import MU_EARTH
 from ddvi_core.orbit import rv_to_hill
 from services.bus import Bus, BusSettings, open_session, wait_for_alive
 from services.deployment import load_deployment
+from services.launcher import free_port
 from services.mission import lqr_gains, orbit_period
 from services.monitor import (
     add_monitor_arguments,
@@ -64,12 +64,6 @@ name = "beta"
 controller = "ddvi"
 y_ref = -20.0
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = TIMEOUT) -> bool:

@@ -69,21 +69,39 @@ def test_nan_rejected() -> None:
 def test_incomplete_exosystem() -> None:
     with pytest.raises(ProblemError) as exc:
         RegulationProblem(
-            A=DI_A, B=DI_B, Q=np.eye(2), R=np.eye(1), C=[[1.0, 0.0]],
-            E=np.zeros((1, 1)), D=np.zeros((2, 1)),
+            A=DI_A,
+            B=DI_B,
+            Q=np.eye(2),
+            R=np.eye(1),
+            C=[[1.0, 0.0]],
+            E=np.zeros((1, 1)),
+            D=np.zeros((2, 1)),
         )
     msg = str(exc.value)
     assert "incomplete" in msg and "F" in msg.split("but")[1]
     with pytest.raises(ProblemError, match="C: required"):
         RegulationProblem(
-            A=DI_A, B=DI_B, Q=np.eye(2), R=np.eye(1),
-            E=np.zeros((1, 1)), D=np.zeros((2, 1)), F=np.zeros((1, 1)),
+            A=DI_A,
+            B=DI_B,
+            Q=np.eye(2),
+            R=np.eye(1),
+            E=np.zeros((1, 1)),
+            D=np.zeros((2, 1)),
+            F=np.zeros((1, 1)),
         )
 
 
 def test_sizes_and_numeric_coercion() -> None:
-    P = RegulationProblem(A=DI_A.tolist(), B=DI_B.tolist(), Q=np.eye(2), R=2.0,
-                          C=[[1.0, 0.0]], E=[[0.0]], D=[[0.0], [0.0]], F=[[-1.0]])
+    P = RegulationProblem(
+        A=DI_A.tolist(),
+        B=DI_B.tolist(),
+        Q=np.eye(2),
+        R=2.0,
+        C=[[1.0, 0.0]],
+        E=[[0.0]],
+        D=[[0.0], [0.0]],
+        F=[[-1.0]],
+    )
     assert (P.n, P.m, P.p, P.q) == (2, 1, 1, 1)
     assert P.has_exosystem
     assert P.R.shape == (1, 1) and P.C.shape == (1, 2)
@@ -97,8 +115,16 @@ def test_numerical_rank() -> None:
 
 # ---- assumptions ----------------------------------------------------------------------------
 def test_double_integrator_all_hold() -> None:
-    P = RegulationProblem(A=DI_A, B=DI_B, Q=np.eye(2), R=np.eye(1), C=[[1.0, 0.0]],
-                          E=[[0.0, -1.0], [1.0, 0.0]], D=np.zeros((2, 2)), F=[[-1.0, 0.0]])
+    P = RegulationProblem(
+        A=DI_A,
+        B=DI_B,
+        Q=np.eye(2),
+        R=np.eye(1),
+        C=[[1.0, 0.0]],
+        E=[[0.0, -1.0], [1.0, 0.0]],
+        D=np.zeros((2, 2)),
+        F=[[-1.0, 0.0]],
+    )
     rep = P.check_assumptions()
     assert rep.ok and rep.failures == ()
     assert len(rep.checks) == 3
@@ -132,8 +158,9 @@ def test_transmission_zero_at_exosystem_eigenvalue() -> None:
     B = np.array([[0.0], [0.0], [1.0]])
     C = np.array([[4.0, 0.0, 1.0]])
     E = np.array([[0.0, -2.0], [2.0, 0.0]])
-    P = RegulationProblem(A=A, B=B, Q=np.eye(3), R=np.eye(1), C=C, E=E,
-                          D=np.zeros((3, 2)), F=[[1.0, 0.0]])
+    P = RegulationProblem(
+        A=A, B=B, Q=np.eye(3), R=np.eye(1), C=C, E=E, D=np.zeros((3, 2)), F=[[1.0, 0.0]]
+    )
     rep = P.check_assumptions()
     reg = _check(rep, "regulator")
     assert not reg.holds
@@ -141,8 +168,9 @@ def test_transmission_zero_at_exosystem_eigenvalue() -> None:
     assert _check(rep, "stabilisable").holds and _check(rep, "detectable").holds
     # the same plant tracking frequency 1 is fine
     E1 = np.array([[0.0, -1.0], [1.0, 0.0]])
-    P1 = RegulationProblem(A=A, B=B, Q=np.eye(3), R=np.eye(1), C=C, E=E1,
-                           D=np.zeros((3, 2)), F=[[1.0, 0.0]])
+    P1 = RegulationProblem(
+        A=A, B=B, Q=np.eye(3), R=np.eye(1), C=C, E=E1, D=np.zeros((3, 2)), F=[[1.0, 0.0]]
+    )
     assert P1.check_assumptions().ok
 
 

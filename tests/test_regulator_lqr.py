@@ -34,10 +34,15 @@ def test_regulator_equations_thrust_rendezvous() -> None:
     assert r2 < 1e-9 * np.linalg.norm(P.F)
     # m = p: the solution is unique; independently solve the Sylvester-type system
     n, m, q = 6, 3, 8
-    G = np.block([[np.kron(P.E.T, np.eye(n)) - np.kron(np.eye(q), P.A), -np.kron(np.eye(q), P.B)],
-                  [np.kron(np.eye(q), P.C), np.zeros((3 * q, m * q))]])
-    z = np.linalg.solve(G, np.concatenate([P.D.reshape(-1, order="F"),
-                                           -P.F.reshape(-1, order="F")]))
+    G = np.block(
+        [
+            [np.kron(P.E.T, np.eye(n)) - np.kron(np.eye(q), P.A), -np.kron(np.eye(q), P.B)],
+            [np.kron(np.eye(q), P.C), np.zeros((3 * q, m * q))],
+        ]
+    )
+    z = np.linalg.solve(
+        G, np.concatenate([P.D.reshape(-1, order="F"), -P.F.reshape(-1, order="F")])
+    )
     np.testing.assert_allclose(X, z[: n * q].reshape(n, q, order="F"), atol=1e-8)
     np.testing.assert_allclose(U, z[n * q :].reshape(m, q, order="F"), atol=1e-12)
 
@@ -78,8 +83,12 @@ def test_minimum_trace_underdetermined() -> None:
 
     # every feasible solution is (X, U) + a null-space direction of the linear constraints
     N = n * q + m * q
-    G = np.block([[np.kron(E.T, np.eye(n)) - np.kron(np.eye(q), A), -np.kron(np.eye(q), B)],
-                  [np.kron(np.eye(q), C), np.zeros((p * q, m * q))]])
+    G = np.block(
+        [
+            [np.kron(E.T, np.eye(n)) - np.kron(np.eye(q), A), -np.kron(np.eye(q), B)],
+            [np.kron(np.eye(q), C), np.zeros((p * q, m * q))],
+        ]
+    )
     Z = scipy.linalg.null_space(G)
     assert Z.shape[1] == N - G.shape[0] > 0  # truly under-determined
     c_star = cost(X, U)
@@ -117,8 +126,9 @@ def test_equality_constrained_lstsq_direct() -> None:
     np.testing.assert_allclose(z, [2.5, -1.5], atol=1e-12)
     assert res < 1e-12
     with pytest.raises(InfeasibleError):
-        solve_equality_constrained_lstsq(np.eye(2), c, np.array([[1.0, 1.0], [1.0, 1.0]]),
-                                         np.array([1.0, 2.0]))
+        solve_equality_constrained_lstsq(
+            np.eye(2), c, np.array([[1.0, 1.0], [1.0, 1.0]]), np.array([1.0, 2.0])
+        )
 
 
 def test_feedforward_gain() -> None:

@@ -41,8 +41,15 @@ def test_rendezvous_with_balanced_scaling_converges() -> None:
     n = models.DragRendezvous().mean_motion
     A, B, Q, R = prob.A, prob.B, prob.Q, prob.R
     sc = balanced_scaling(A, B, Q, R, time_unit=n)
-    res = value_iteration(A, B, Q, R, steps=StepSequence("constant", 0.01),
-                          bounds=BoundSchedule("geometric"), scaling=sc)
+    res = value_iteration(
+        A,
+        B,
+        Q,
+        R,
+        steps=StepSequence("constant", 0.01),
+        bounds=BoundSchedule("geometric"),
+        scaling=sc,
+    )
     P_are = scipy.linalg.solve_continuous_are(A, B, Q, R)
     K_are = np.linalg.solve(R, B.T @ P_are)
     assert res.converged, res.message
@@ -150,7 +157,14 @@ def test_bounds_reset_counted() -> None:
     """A tiny bound forces resets; the iteration must still report them and not converge."""
     A = np.array([[0.0, 1.0], [-2.0, -3.0]])
     B = np.array([[0.0], [1.0]])
-    res = value_iteration(A, B, 100 * np.eye(2), np.eye(1), scaling=False,
-                          bounds=BoundSchedule("linear", 1e-3), max_iterations=50)
+    res = value_iteration(
+        A,
+        B,
+        100 * np.eye(2),
+        np.eye(1),
+        scaling=False,
+        bounds=BoundSchedule("linear", 1e-3),
+        max_iterations=50,
+    )
     assert res.resets > 0
     assert not res.converged
