@@ -65,6 +65,7 @@ class Environment:
     drag: bool = True
     density_factor: float = 1.0  # truth density / nominal density
     max_step: float = 60.0  # integrator step bound, s
+    min_altitude: float = 150e3  # m above R_E: a craft below it has re-entered; the run ends
     rtol: float = 1e-11
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive
 from services.mission import (
+    ReentryError,
     duration,
     exostate,
     initial_states,
@@ -129,7 +130,18 @@ def main(ctx: ServiceContext) -> int:
     while t_k < t_end - 1e-6 and not ctx.stop.is_set():
         take_commands(t_k, wait=run.mode == "lockstep")
         t_next = t_k + fsw
-        samples, traj = truth_step(dep, state, t_k, sigma, craft, atmosphere)
+        try:
+            samples, traj = truth_step(dep, state, t_k, sigma, craft, atmosphere)
+        except ReentryError as exc:
+            ctx.log("error", f"mission ended early: {exc}", t_k)
+            # tell every service the run is over at the last published sample
+            ctx.bus.publish(
+                "clock",
+                "clock",
+                {"step": step, "dt": dt, "fsw": True, "mode": run.mode, "final": True},
+                t_k,
+            )
+            break
         for k, t in enumerate(samples):
             step += 1
             publish_sample(float(t), step, traj[k], final=abs(t - t_end) < 1e-6)

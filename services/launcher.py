@@ -22,6 +22,7 @@ from typing import IO
 
 from services.bus import BusSettings, open_session, wait_for_alive
 from services.deployment import Deployment
+from services.mission import holding_margin
 
 MODULES = {
     "environment": "services.environment",
@@ -105,6 +106,13 @@ class Launcher:
         """Run the mission; the exit status is 0 only when it completed and was reported."""
         self.out.mkdir(parents=True, exist_ok=True)
         self.say(f"run {self.run}, output {self.out}")
+        for d in self.dep.deputy:
+            if (margin := holding_margin(self.dep, d)) < 0:
+                self.say(
+                    f"warning: deputy {d.name!r} cannot hold a slot: its largest drag (area "
+                    f"factor {d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is "
+                    f"{-margin:.0%} below the chief's, so its along-track error will grow"
+                )
         hub = BusSettings(mode="peer", listen=[self.hub], connect=list(self.dep.bus.connect))
         started = time.monotonic()
         try:

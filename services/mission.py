@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ddvi_core.constants import MU_EARTH
+from ddvi_core.constants import MU_EARTH, R_EARTH
 from ddvi_core.lqr import solve_lqr
 from ddvi_core.models import DragRendezvous, harmonic_exosystem, rendezvous_problem
 from ddvi_core.orbit import elements_to_rv, mrp_to_dcm
@@ -20,6 +20,12 @@ from ddvi_core.problem import RegulationProblem
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
 from ddvi_core.truth import Atmosphere, Spacecraft, propagate
 from services.deployment import Deployment, Deputy, Orbit
+
+
+class ReentryError(RuntimeError):
+    """The truth cannot go on: a craft fell below the deployment's minimum altitude (or the
+    integrator failed on the way there).  The message names the craft, its altitude and when."""
+
 
 IN_PLANE = (0, 1, 3, 4)  # [x, y, xdot, ydot] out of the Hill state [x, y, z, xdot, ydot, zdot]
 
@@ -104,6 +110,22 @@ def initial_states(dep: Deployment) -> NDArray[np.float64]:
     return np.array([_rv(dep.chief)] + [_rv(d.orbit) for d in dep.deputy])
 
 
+def holding_margin(dep: Deployment, deputy: Deputy) -> float:
+    """How far the deputy's truth drag can be raised above the chief's, as a fraction of the
+    chief's: max over |sigma3| <= limit of A_d sin(alpha + phi) / (A_c sin alpha) - 1, with
+    phi = 4 atan(sigma3) (the facet geometry of ``ddvi_core.models.drag_sensitivity``).  Below
+    zero, no attitude makes the deputy's drag match the chief's: it cannot hold a slot, and
+    the along-track error grows whatever the controller does."""
+    alpha = math.radians(dep.spacecraft.normal_angle)
+    phi = 4.0 * math.atan(deputy.attitude_limit)
+    best = (
+        1.0
+        if alpha - phi <= math.pi / 2 <= alpha + phi
+        else max(math.sin(alpha + phi), math.sin(alpha - phi))
+    )
+    return deputy.area_factor * best / math.sin(alpha) - 1.0
+
+
 def truth_craft(dep: Deployment) -> list[Spacecraft]:
     """The truth's spacecraft: the nominal design, each deputy's facet area times its
     area_factor; facet normal in the body x-y plane."""
@@ -143,18 +165,31 @@ def truth_step(
     samples = t_k + run.nav_period * np.arange(1, round(run.fsw_period / run.nav_period) + 1)
     attitudes = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
     env = dep.environment
-    traj = propagate(
-        state,
-        t_k,
-        t_k + run.fsw_period,
-        attitudes,
-        craft,
-        atmosphere,
-        attitude_frame="hill",
-        j2=env.j2,
-        drag=env.drag,
-        t_eval=samples,
-        max_step=env.max_step,
-        rtol=env.rtol,
-    )
+    try:
+        traj = propagate(
+            state,
+            t_k,
+            t_k + run.fsw_period,
+            attitudes,
+            craft,
+            atmosphere,
+            attitude_frame="hill",
+            j2=env.j2,
+            drag=env.drag,
+            t_eval=samples,
+            max_step=env.max_step,
+            rtol=env.rtol,
+        )
+    except RuntimeError as exc:  # the integrator gives up only on a plunging orbit
+        raise ReentryError(f"truth propagation failed after t = {t_k:.0f} s: {exc}") from exc
+    altitude = np.linalg.norm(traj[:, :, :3], axis=2) - R_EARTH
+    if np.any(low := altitude < env.min_altitude):
+        k, i = np.argwhere(low)[0]
+        name = "chief" if i == 0 else dep.deputy[i - 1].name
+        raise ReentryError(
+            f"{name} fell to {altitude[k, i] / 1e3:.1f} km altitude at t = {samples[k]:.0f} s "
+            f"(orbit {samples[k] / orbit_period(dep):.1f}), below environment.min_altitude = "
+            f"{env.min_altitude / 1e3:g} km: it has re-entered; shorten run.orbits or lower "
+            "the density"
+        )
     return samples, traj

@@ -562,7 +562,9 @@ def write_report(
     summary: dict[str, Any] = {
         "run": data.run,
         "deployment": data.dep.path,
-        "completed": completed,
+        # completed: the monitor saw the final clock at the planned end (an early final clock,
+        # a re-entry say, is a run that ended, not a mission that completed)
+        "completed": completed and data.sim_t >= data.duration - 1e-6,
         "sim_time_s": data.sim_t,
         "orbits": data.sim_t / data.period,
         "planned_sim_time_s": data.duration,

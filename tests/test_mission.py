@@ -120,3 +120,39 @@ def test_bad_deployment_file_exits_2(tmp_path: Path) -> None:
         timeout=60,
     )
     assert r.returncode == 2 and "run.mode" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_holding_margin_flags_a_deputy_that_cannot_match_the_chiefs_drag() -> None:
+    from services.mission import holding_margin
+
+    nominal = load_deployment("deployments/rendezvous.toml")
+    half = load_deployment("deployments/mismatch-0.5x.toml")
+    # 45 deg facet, |sigma3| <= 0.2 (phi up to 45.2 deg): broadside is reachable, so the
+    # deputy's drag can rise to 1/sin(45 deg) = 1.414 of the chief's
+    assert holding_margin(nominal, nominal.deputy[0]) == pytest.approx(2**0.5 - 1, rel=1e-9)
+    assert holding_margin(half, half.deputy[0]) == pytest.approx(0.5 * 2**0.5 - 1, rel=1e-9)
+
+
+def test_truth_step_ends_the_run_on_reentry() -> None:
+    import dataclasses
+
+    import numpy as np
+
+    from services.mission import (
+        ReentryError,
+        initial_states,
+        truth_atmosphere,
+        truth_craft,
+        truth_step,
+    )
+
+    dep = load_deployment("deployments/rendezvous.toml")
+    # a floor above the 300 km orbit: the first step is already "below" it
+    dep = dataclasses.replace(
+        dep, environment=dataclasses.replace(dep.environment, min_altitude=400e3)
+    )
+    expected = r"chief fell to 300\.0 km altitude at t = 10 s.*min_altitude = 400 km"
+    with pytest.raises(ReentryError, match=expected):
+        truth_step(
+            dep, initial_states(dep), 0.0, np.zeros((2, 3)), truth_craft(dep), truth_atmosphere(dep)
+        )
