@@ -86,6 +86,18 @@ def test_default_deployment_loads() -> None:
     ]
 
 
+def test_swarm_and_mismatch_deployments() -> None:
+    swarm = load_deployment("deployments/swarm.toml")
+    assert sorted(d.y_ref for d in swarm.deputy) == [-2000.0, -1000.0, 1000.0, 2000.0]
+    # each deputy its own navigation and controller process
+    assert len([s for s in swarm.services if s.startswith(("nav-", "ctrl-"))]) == 8
+    for factor in (2.0, 0.5):
+        dep = load_deployment(f"deployments/mismatch-{factor:g}x.toml")
+        assert dep.environment.density_factor == factor
+        assert {d.controller for d in dep.deputy} == {"lqr", "ddvi"}
+        assert all(d.area_factor == factor for d in dep.deputy)
+
+
 @pytest.mark.parametrize(
     ("table", "needle"),
     [
