@@ -91,6 +91,21 @@ class IntervalData:
     def intervals(self) -> int:
         return self.W.shape[0]
 
+    def since(self, t: float) -> IntervalData:
+        """The intervals that start at or after t (s): a learning window."""
+        keep = self.t_start >= t
+        return IntervalData(
+            self.n,
+            self.m,
+            self.q,
+            self.W[keep],
+            self.G[keep],
+            self.w_start[keep],
+            self.w_end[keep],
+            self.t_start[keep],
+            self.t_end[keep],
+        )
+
 
 class IntervalCollector:
     """Streaming accumulator of the interval integrals, for an on-board learner.
@@ -292,6 +307,37 @@ def _rank_report(
     return "; ".join(parts)
 
 
+def _translation_offset(
+    data: IntervalData, direction: ArrayLike, E: ArrayLike | None
+) -> NDArray[np.float64]:
+    """X_off (n, q): the data's time-mean position along ``direction`` (n,), on the
+    exosystem's constant mode (the column and row of E that are zero)."""
+    n, q = data.n, data.q
+    d = np.asarray(direction, dtype=float).reshape(-1)
+    if d.size != n or not np.all(np.isfinite(d)) or not np.any(d):
+        raise LearningError(f"translation must be {n} finite numbers, not all zero; got {d}")
+    Ea = np.zeros((0, 0)) if E is None else np.asarray(E, dtype=float)
+    constant = [i for i in range(q) if not np.any(Ea[:, i]) and not np.any(Ea[i, :])]
+    if not constant:
+        raise LearningError(
+            "translation needs an exosystem with a constant mode (a zero row and column of E) "
+            "to carry the offset; add one or drop translation"
+        )
+    i = constant[0]
+    duration = float(np.sum(data.t_end - data.t_start))
+    if duration <= 0:
+        return np.zeros((n, q))
+    v_i = data.W[:, n + i, n + i].sum() / duration  # the constant mode's value squared
+    if v_i <= 0:
+        return np.zeros((n, q))
+    d = d / np.linalg.norm(d)
+    # time-mean of (d . x) v_i over the data, divided by v_i^2: the offset's amplitude
+    c = float(d @ data.W[:, :n, n + i].sum(axis=0)) / (duration * v_i)
+    X = np.zeros((n, q))
+    X[:, i] = c * d
+    return X
+
+
 def learn_from_data(
     data: IntervalData,
     Q: ArrayLike,
@@ -310,6 +356,7 @@ def learn_from_data(
     Rbar: ArrayLike | None = None,
     rank_rtol: float = 1e-10,
     state_scale: ArrayLike | None = None,
+    translation: ArrayLike | None = None,
 ) -> DDVIResult:
     """Algorithm 2 on collected interval data.
 
@@ -319,6 +366,14 @@ def learn_from_data(
     metres and metres per time unit: [1, .., w0, ..]); by default each state's RMS over the
     data.  The cost is normalised to |Q_s| = 1.  Raises RankDeficientError
     with a report when Theta_j is not of full column rank.
+
+    ``translation`` (n,) is a direction d the dynamics do not see (A d = 0: for a Hill state,
+    an along-track shift, because no point of a circular orbit is special).  Every xbar_j is
+    then taken about the data's mean position along d, carried on the exosystem's constant
+    mode: X_j + c d e_0^T with S(c d e_0^T) = c (d e_0^T E - A d e_0^T) = 0, so the unknowns
+    are exactly Algorithm 2's.  It matters far from the origin: at 35 km behind the chief,
+    xbar = x is all along-track offset, the regression is dominated by P_yy y^2, and any
+    unmodelled acceleration enters it scaled by the offset.
     """
     n, m, q = data.n, data.m, data.q
     Q = np.asarray(Q, dtype=float)
@@ -358,11 +413,12 @@ def learn_from_data(
     else:
         X_list = [np.zeros((n, 0))]
 
+    X_off = 0.0 if translation is None else _translation_offset(data, translation, E) / S[:, None]
     # Theta_j with its columns equilibrated: the unknowns (H, K, (D - S)^T P) differ by many
     # orders of magnitude, and an unequilibrated least-squares solve loses them to round-off
     thetas = []
     for X in X_list:
-        Th, d = _theta(data, np.hstack([np.eye(n), -X]), R_s, W, G, ws, we)
+        Th, d = _theta(data, np.hstack([np.eye(n), -(X + X_off)]), R_s, W, G, ws, we)
         norms = np.linalg.norm(Th, axis=0)
         thetas.append((Th, d, np.where(norms > 0, norms, 1.0)))
     ranks, condition = [], math.inf

@@ -20,6 +20,7 @@ from ddvi_core.problem import RegulationProblem
 
 __all__ = [
     "DragRendezvous",
+    "drag_allocation",
     "drag_sensitivity",
     "harmonic_exosystem",
     "paper_printed_problem",
@@ -52,6 +53,30 @@ def drag_sensitivity(
     beta = cd * area * math.sin(normal_angle) / mass
     dbeta = 4.0 * cd * area * math.cos(normal_angle) / mass
     return beta, dbeta
+
+
+def drag_allocation(u: float, normal_angle: float, limit: float) -> tuple[float, float]:
+    """The attitude that makes the facet's drag exactly linear in the control input.
+
+    The linear model's input u (B = dbeta/dsigma3 at sigma3 = 0) asks for a projected-area
+    fraction sin(alpha) + 4 cos(alpha) u; the facet gives sin(alpha + 4 atan sigma3), which at
+    |sigma3| = 0.2 is up to 48% off the line.  This solves sin(alpha + 4 atan sigma3) =
+    sin(alpha) + 4 cos(alpha) u for sigma3 (rad, MRP), within |sigma3| <= ``limit`` and the
+    monotonic range |alpha + phi| <= 90 deg (the projected area cannot go below zero).
+    Returns (sigma3, u_applied): u_applied is the u the drag really follows, u itself unless
+    the request was out of reach.  To first order sigma3 = u, so a gain designed for u is a
+    gain on sigma3."""
+    if not (0.0 < normal_angle < math.pi / 2):
+        raise ValueError(f"normal_angle must be in (0, 90) deg, got {math.degrees(normal_angle)}")
+    if not math.isfinite(u):
+        raise ValueError(f"drag allocation input is not finite: {u}")
+    phi_lim = 4.0 * math.atan(limit)
+    lo = math.sin(max(normal_angle - phi_lim, 0.0))  # the facet turns edge-on at zero area
+    hi = math.sin(min(normal_angle + phi_lim, math.pi / 2))
+    s0, slope = math.sin(normal_angle), 4.0 * math.cos(normal_angle)
+    s = min(max(s0 + slope * u, lo), hi)
+    sigma3 = math.tan((math.asin(s) - normal_angle) / 4.0)
+    return sigma3, (s - s0) / slope
 
 
 def harmonic_exosystem(rates: list[float], constant: bool) -> NDArray[np.float64]:

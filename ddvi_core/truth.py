@@ -39,6 +39,7 @@ __all__ = [
     "Atmosphere",
     "Spacecraft",
     "acceleration",
+    "gravity",
     "propagate",
     "rendezvous_initial_states",
 ]
@@ -180,6 +181,13 @@ def _gravity(r: FloatArray, rn: FloatArray, j2: bool, mu: float) -> FloatArray:
         acc[:, 1] += f_xy * r[:, 1]
         acc[:, 2] += (k * (3.0 - 5.0 * zr2)) * r[:, 2]
     return acc
+
+
+def gravity(r_N: ArrayLike, *, j2: bool = True, mu: float = MU_EARTH) -> FloatArray:
+    """Two-body (+ J2) acceleration (3,) or (N, 3), m/s^2, at inertial positions r_N (m)."""
+    r, single = _stack(r_N, "r_N")
+    acc = _gravity(r, np.sqrt(np.einsum("ij,ij->i", r, r)), j2, mu)
+    return acc[0] if single else acc
 
 
 def acceleration(

@@ -15,6 +15,7 @@ B or D.  Control input u = sigma3, the relative MRP about the orbit normal; sigm
 
 from __future__ import annotations
 
+import math
 import queue
 import sys
 import time
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
+from ddvi_core.models import drag_allocation
 from ddvi_core.simulate import Exploration
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.bus import queue_handler
@@ -76,19 +78,22 @@ class Controller:
             )
             self.learn_at = lrn.learn_at_orbits * orbit_period(dep)
             self.next_attempt = self.learn_at
-        self.u = 0.0  # the command in force
+        self.normal_angle = math.radians(dep.spacecraft.normal_angle)
+        self.u = 0.0  # the attitude command in force, sigma3
+        self.u_applied = 0.0  # the linear-model input it realises (drag_allocation)
         self.iteration = 0
         self.converged = self.mode == "lqr"
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
 
     def command(self, t: float, x: np.ndarray, v: np.ndarray) -> float:
-        """The command for a flight-software step at t, from state x (4,) and exostate v."""
+        """The attitude command sigma3 for a flight-software step at t, from state x (4,) and
+        exostate v; ``u_applied`` is the linear-model input it realises (what the learner
+        records)."""
+        u = float((-self.K @ x + self.L @ v)[0])
         if self.phase == "exploring":
-            u = float((-self.K @ x + self.L @ v)[0] + self.exploration(t, 1)[0])
-        else:
-            u = float((-self.K @ x + self.L @ v)[0])
-        self.u = float(np.clip(u, -self.limit, self.limit))
+            u += float(self.exploration(t, 1)[0])
+        self.u, self.u_applied = drag_allocation(u, self.normal_angle, self.limit)
         return self.u
 
     def on_sample(self, t: float, x: np.ndarray, v: np.ndarray) -> SampleOutcome:
@@ -103,7 +108,7 @@ class Controller:
             self.command(t, x, v)
         if self.phase == "exploring":
             try:
-                self.collector.add(t, x, [self.u], v)
+                self.collector.add(t, x, [self.u_applied], v)
             except LearningError as exc:
                 outcome.rejected = f"sample at t = {t} rejected: {exc}"
         return outcome
@@ -114,8 +119,11 @@ class Controller:
         n = self.n_rate
         t0 = time.perf_counter()
         try:
+            data = self.collector.data()
+            if lrn.window_orbits > 0:
+                data = data.since(t - lrn.window_orbits * orbit_period(self.dep))
             r = learn_from_data(
-                self.collector.data(),
+                data,
                 pr.Q,
                 pr.R,
                 time_unit=n,
@@ -127,6 +135,7 @@ class Controller:
                 tol=lrn.tol,
                 max_iterations=lrn.max_iterations,
                 state_scale=[1.0, 1.0, n, n],
+                translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
             )
         except LearningError as exc:
             self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)

@@ -17,6 +17,8 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from ddvi_core.relnav import FRAMES
+
 __all__ = [
     "Atmosphere",
     "Deployment",
@@ -97,6 +99,7 @@ class Orbit:
 @dataclass(frozen=True)
 class Navigation:
     period: float = 10.0  # s, a whole multiple of run.nav_period
+    frame: str = "path"  # "path" (against the chief's path) or "curvilinear" (ddvi_core.relnav)
     position_noise: float = 0.0  # 1-sigma white noise per axis, m
     velocity_noise: float = 0.0  # m/s
     position_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -112,6 +115,8 @@ class Learning:
     exploration_amplitude: float = 0.1  # rad (MRP) of the multi-sine
     exploration_frequencies: list[float] = field(default_factory=list)  # rad/s; [] = spread
     K0: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    window_orbits: float = 0.0  # learn from the last this many orbits of data; 0 = all of it
+    along_track_reference: bool = True  # xbar about the data's mean along-track position
     step: str = "constant"
     step_size: float = 0.01  # in units of the orbit rate
     bounds: str = "geometric"
@@ -292,6 +297,10 @@ def validate(dep: Deployment) -> None:
         for key in ("position_noise", "velocity_noise"):
             if getattr(d.navigation, key) < 0:
                 raise DeploymentError(f"{w}.navigation.{key}: must be >= 0")
+        if d.navigation.frame not in FRAMES:
+            raise DeploymentError(
+                f"{w}.navigation.frame: {d.navigation.frame!r} is not one of {list(FRAMES)}"
+            )
         for key in ("position_bias", "velocity_bias"):
             if len(getattr(d.navigation, key)) != 3:
                 raise DeploymentError(f"{w}.navigation.{key}: expected 3 values")
@@ -305,6 +314,8 @@ def validate(dep: Deployment) -> None:
                 f"{w}.learning.exploration_amplitude: must lie in "
                 f"[0, attitude_limit = {d.attitude_limit}]"
             )
+        if not (math.isfinite(lrn.window_orbits) and lrn.window_orbits >= 0):
+            raise DeploymentError(f"{w}.learning.window_orbits: must be >= 0 (0 = all data)")
         if len(lrn.K0) != 4:
             raise DeploymentError(f"{w}.learning.K0: expected 4 values (gain on x, y, xdot, ydot)")
         if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
 from services.controller import Controller
 from services.deployment import Deployment
 from services.mission import (
@@ -14,6 +13,7 @@ from services.mission import (
     duration,
     exostate,
     initial_states,
+    navigation_state,
     on_grid,
     truth_atmosphere,
     truth_craft,
@@ -36,12 +36,10 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     def sample(t: float, X: np.ndarray) -> None:
         v, _ = exostate(dep, t)
         for i, (d, c) in enumerate(zip(dep.deputy, ctrls, strict=True)):
-            x6 = hill_to_curvilinear(
-                X[0, :3], X[0, 3:], rv_to_hill(X[0, :3], X[0, 3:], X[i + 1, :3], X[i + 1, 3:])
-            )
             nav = dep.deputy[i].navigation
             if not on_grid(t, nav.period):
                 continue
+            x6 = navigation_state(dep, d, X[0], X[i + 1])
             noisy = (
                 x6
                 + np.array(nav.position_bias + nav.velocity_bias)

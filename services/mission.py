@@ -18,6 +18,7 @@ from ddvi_core.models import DragRendezvous, harmonic_exosystem, rendezvous_prob
 from ddvi_core.orbit import elements_to_rv, mrp_to_dcm
 from ddvi_core.problem import RegulationProblem
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
+from ddvi_core.relnav import relative_state
 from ddvi_core.truth import Atmosphere, Spacecraft, propagate
 from services.deployment import Deployment, Deputy, Orbit
 
@@ -91,6 +92,20 @@ def lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
     K = solve_lqr(pr.A, pr.B, pr.Q, pr.R).K
     X, U = solve_regulator_equations(pr.A, pr.B, pr.C, pr.D, pr.E, pr.F)
     return K, feedforward_gain(K, X, U)
+
+
+def navigation_state(
+    dep: Deployment, deputy: Deputy, chief: NDArray, state: NDArray
+) -> NDArray[np.float64]:
+    """The deputy's true relative state (6,) in its navigation frame, from the inertial
+    states (6,) of the chief and the deputy (before noise and bias)."""
+    return relative_state(
+        deputy.navigation.frame,
+        chief,
+        state,
+        v_ref=mean_motion(dep) * dep.chief.a,
+        j2=dep.environment.j2,
+    )
 
 
 def _rv(orbit: Orbit) -> NDArray[np.float64]:

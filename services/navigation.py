@@ -1,10 +1,10 @@
 """Navigation service, one per deputy: what an on-board relative navigation filter publishes.
 
 Inputs:  truth/chief, truth/<deputy> (truth); clock.
-Outputs: nav/<deputy>/state (nav): the deputy's curvilinear Hill state relative to the chief,
-         [x, y, z, xdot, ydot, zdot] (radial separation, along- and cross-track arc lengths,
-         their rates; ddvi_core.orbit.hill_to_curvilinear), at the configured rate, with white
-         noise and bias;
+Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
+         [x, y, z, xdot, ydot, zdot], in the frame navigation.frame names (ddvi_core.relnav:
+         against the chief's path by default, or curvilinear Hill), at the configured rate,
+         with white noise and bias;
          stats/nav-<deputy>.
 """
 
@@ -15,9 +15,8 @@ import sys
 
 import numpy as np
 
-from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
 from services.bus import queue_handler
-from services.mission import on_grid
+from services.mission import navigation_state, on_grid
 from services.service import ServiceContext, run_service
 
 
@@ -54,9 +53,7 @@ def main(ctx: ServiceContext) -> int:
                 del pending[msg.t]
                 last_pair = max(last_pair, msg.t)
                 if on_grid(msg.t, cfg.period) and msg.t > last_t:
-                    c, d = slot["chief"], slot[sc]
-                    hill = rv_to_hill(c[:3], c[3:], d[:3], d[3:])
-                    x = hill_to_curvilinear(c[:3], c[3:], hill) + bias
+                    x = navigation_state(ctx.deployment, deputy, slot["chief"], slot[sc]) + bias
                     if sigma.any():
                         x = x + rng.normal(0.0, 1.0, 6) * sigma
                     ctx.bus.publish(

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ddvi_core.constants import J2_EARTH, MU_EARTH, R_EARTH
+from ddvi_core.models import drag_allocation
 from ddvi_core.orbit import body_dcm, hill_frame, mrp_to_dcm, rv_to_elements, rv_to_hill
 from ddvi_core.truth import (
     Atmosphere,
@@ -355,3 +356,34 @@ def test_rendezvous_initial_states() -> None:
     assert (a, u) == pytest.approx((6678.376e3, math.radians(49.75)), abs=1e-9)
     xh = rv_to_hill(x0[0, :3], x0[0, 3:], x0[1, :3], x0[1, 3:])
     assert xh[:3] == pytest.approx([176.4, -29139.8, 0.0], abs=0.1)
+
+
+# ---- drag allocation: the attitude that makes the facet's drag linear in u ------------------
+@pytest.mark.parametrize("u", [-0.25, -0.2, -0.1, -0.01, 0.0, 0.02, 0.05, 0.1])
+def test_drag_allocation_is_linear_in_u(u: float) -> None:
+    alpha = math.radians(45.0)
+    sigma, applied = drag_allocation(u, alpha, 0.2)
+    assert abs(sigma) <= 0.2 + 1e-12
+    assert applied == pytest.approx(u, abs=1e-12)
+    projected = math.sin(alpha + 4 * math.atan(sigma))
+    assert projected == pytest.approx(math.sin(alpha) + 4 * math.cos(alpha) * u, abs=1e-12)
+
+
+def test_drag_allocation_first_order_and_limits() -> None:
+    alpha = math.radians(45.0)
+    sigma, _ = drag_allocation(1e-6, alpha, 0.2)
+    assert sigma == pytest.approx(1e-6, rel=1e-5)  # a gain on u is a gain on sigma3
+    # out of reach: broadside (full area) on one side, edge-on (zero area) on the other
+    hi_sigma, hi = drag_allocation(1.0, alpha, 0.2)
+    lo_sigma, lo = drag_allocation(-1.0, alpha, 0.2)
+    assert hi == pytest.approx((1 - math.sin(alpha)) / (4 * math.cos(alpha)))
+    assert lo == pytest.approx(-math.sin(alpha) / (4 * math.cos(alpha)))
+    assert abs(hi_sigma) <= 0.2 and abs(lo_sigma) <= 0.2
+    # a tight limit binds before the facet geometry does
+    s, applied = drag_allocation(0.1, alpha, 0.01)
+    assert s == pytest.approx(0.01)
+    assert applied < 0.1
+    with pytest.raises(ValueError, match="not finite"):
+        drag_allocation(float("nan"), alpha, 0.2)
+    with pytest.raises(ValueError, match="normal_angle"):
+        drag_allocation(0.0, math.radians(95.0), 0.2)
