@@ -122,4 +122,3 @@ def relative_state(
     if frame == "path":
         return path_relative_state(c[:3], c[3:], d[:3], d[3:], v_ref, j2=j2)
     raise ValueError(f"unknown navigation frame {frame!r}: expected one of {FRAMES}")
-

@@ -114,6 +114,14 @@ def test_swarm_and_mismatch_deployments() -> None:
             {"deputy": [{"name": "a", "learning": {"exploration_amplitude": 0.5}}]},
             "exploration_amplitude",
         ),
+        (
+            {"deputy": [{"name": "a", "navigation": {"frame": "hill"}}]},
+            "deputy[0].navigation.frame: 'hill' is not one of ['curvilinear', 'path']",
+        ),
+        (
+            {"deputy": [{"name": "a", "learning": {"window_orbits": -1.0}}]},
+            "deputy[0].learning.window_orbits: must be >= 0",
+        ),
     ],
 )
 def test_bad_deployment_names_the_key(table: dict, needle: str) -> None:
