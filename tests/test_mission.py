@@ -23,7 +23,9 @@ controller = "lqr"
 [[deputy]]
 name = "ddvi"
 controller = "ddvi"
-learning = { learn_at_orbits = 1.0, interval = 120.0 }
+# a short budget: a learning attempt blocks the controller's loop, and 200k iterations of a
+# failing attempt take about 10 s on a loaded machine, against a 20 s command deadline
+learning = { learn_at_orbits = 1.0, interval = 120.0, max_iterations = 20000 }
 """
 
 
