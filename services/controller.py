@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ddvi_core.constants import R_EARTH
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.models import drag_allocation
 from ddvi_core.simulate import Exploration
@@ -81,6 +82,8 @@ class Controller:
             self.learn_at = lrn.learn_at_orbits * orbit_period(dep)
             self.next_attempt = self.learn_at
         self.normal_angle = math.radians(dep.spacecraft.normal_angle)
+        self.h_model = dep.chief.a - R_EARTH
+        self.scale_height = dep.atmosphere.scale_height
         self.u = 0.0  # the attitude command in force, sigma3
         self.u_applied = 0.0  # the linear-model input it realises (drag_allocation)
         self.iteration = 0
@@ -88,17 +91,28 @@ class Controller:
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
 
-    def command(self, t: float, x: np.ndarray, v: np.ndarray) -> float:
+    def density_ratio(self, altitude: float) -> float:
+        """rho(h) / rho(h_0) of the nominal exponential atmosphere: how much more drag the
+        facet makes at altitude h (m) than the linear model's reference altitude h_0 (the
+        chief's initial orbit).  The pair decays about 1.4 km in 15 orbits, and the drag, hence
+        B, rises about 19% with it."""
+        return math.exp(-(altitude - self.h_model) / self.scale_height)
+
+    def command(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> float:
         """The attitude command sigma3 for a flight-software step at t, from state x (4,) and
         exostate v; ``u_applied`` is the linear-model input it realises (what the learner
         records)."""
         u = float((-self.K @ x + self.L @ v)[0])
         if self.phase == "exploring":
             u += float(self.exploration(t, 1)[0])
-        self.u, self.u_applied = drag_allocation(u, self.normal_angle, self.limit)
+        # schedule on the measured altitude: the drag the linear model's u stands for is the
+        # same at every altitude, so the learner sees one B (and the LQR its design B)
+        ratio = self.density_ratio(altitude)
+        self.u, u_area = drag_allocation(u / ratio, self.normal_angle, self.limit)
+        self.u_applied = u_area * ratio
         return self.u
 
-    def on_sample(self, t: float, x: np.ndarray, v: np.ndarray) -> SampleOutcome:
+    def on_sample(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> SampleOutcome:
         """One navigation sample, in time order: on a flight-software step, learn if it is
         time to, then compute the command (``self.u``); while exploring, feed the collector
         with the input in force from t on.  The service publishes; the in-process baseline
@@ -107,7 +121,7 @@ class Controller:
         if outcome.fsw:
             if self.phase == "exploring" and t >= self.next_attempt - 1e-6:
                 outcome.learn_log = self.learn(t)
-            self.command(t, x, v)
+            self.command(t, x, v, altitude)
         if self.phase == "exploring":
             try:
                 self.collector.add(t, x, [self.u_applied], v)
@@ -172,7 +186,7 @@ def main(ctx: ServiceContext) -> int:
     ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
     ctx.ready()
     exo: dict[float, np.ndarray] = {}
-    navs: dict[float, np.ndarray] = {}
+    navs: dict[float, tuple[np.ndarray, float]] = {}  # in-plane state, altitude
     counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0}
     steps = 0
     final_t: float | None = None
@@ -223,15 +237,15 @@ def main(ctx: ServiceContext) -> int:
         elif msg.schema == "exo":
             exo[msg.t] = msg.body["v"]
         else:
-            navs[msg.t] = msg.body["x_hill"][list(IN_PLANE)]
+            navs[msg.t] = (msg.body["x_hill"][list(IN_PLANE)], msg.body["altitude"])
         # act on every navigation sample whose exostate has arrived, in time order
         for t in sorted(t for t in navs if t in exo):
-            x, v = navs.pop(t), exo.pop(t)
+            (x, altitude), v = navs.pop(t), exo.pop(t)
             if t <= last_t:
                 counters["samples_rejected"] += 1  # stale or replayed
                 continue
             last_t = t
-            outcome = ctrl.on_sample(t, x, v)
+            outcome = ctrl.on_sample(t, x, v, altitude)
             if outcome.learn_log is not None:
                 counters["learn_attempts"] += 1
                 ctx.log("info", outcome.learn_log, t)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ddvi_core.constants import R_EARTH
 from services.controller import Controller
 from services.deployment import Deployment
 from services.mission import (
@@ -46,7 +47,8 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
                 + rng.normal(0, 1, 6)
                 * np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3)
             )
-            outcome = c.on_sample(t, noisy[list(IN_PLANE)], v)
+            altitude = float(np.linalg.norm(X[i + 1, :3])) - R_EARTH
+            outcome = c.on_sample(t, noisy[list(IN_PLANE)], v, altitude)
             if outcome.learn_log is not None:
                 out[d.name]["log"].append(outcome.learn_log)
             if outcome.fsw:

@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from ddvi_core.constants import R_EARTH
 from services.bus import queue_handler
 from services.mission import navigation_state, on_grid
 from services.service import ServiceContext, run_service
@@ -56,9 +57,9 @@ def main(ctx: ServiceContext) -> int:
                     x = navigation_state(ctx.deployment, deputy, slot["chief"], slot[sc]) + bias
                     if sigma.any():
                         x = x + rng.normal(0.0, 1.0, 6) * sigma
-                    ctx.bus.publish(
-                        f"nav/{sc}/state", "nav", {"sc": sc, "x_hill": x, "valid": True}, msg.t
-                    )
+                    altitude = float(np.linalg.norm(slot[sc][:3])) - R_EARTH
+                    body = {"sc": sc, "x_hill": x, "altitude": altitude, "valid": True}
+                    ctx.bus.publish(f"nav/{sc}/state", "nav", body, msg.t)
                     counters["published"] += 1
                     last_t = msg.t
             # a half pair well behind the newest sample will never complete (a lost message)

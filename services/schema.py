@@ -270,7 +270,8 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
         {"sc": Str(), "r_N": Array((3,)), "v_N": Array((3,)), "sigma_BN": Array((3,))},
     ),
     Schema("exo", 1, {"v": Array((None,)), "phase": Float()}),
-    Schema("nav", 1, {"sc": Str(), "x_hill": Array((6,)), "valid": Bool()}),
+    # altitude: the deputy's own, from its absolute navigation (m above R_E)
+    Schema("nav", 1, {"sc": Str(), "x_hill": Array((6,)), "altitude": Float(), "valid": Bool()}),
     Schema("cmd", 1, {"sc": Str(), "sigma": Array((3,)), "for_t": Float()}),
     Schema(
         "gains",

@@ -41,7 +41,7 @@ def wait_until(predicate: Callable[[], bool], timeout: float = TIMEOUT) -> bool:
 
 
 def nav_body(x: float = 0.0) -> dict[str, Any]:
-    return {"sc": "deputy1", "x_hill": np.full(6, x), "valid": True}
+    return {"sc": "deputy1", "x_hill": np.full(6, x), "altitude": 300e3, "valid": True}
 
 
 Inbox = queue.Queue[tuple[str, Message]]

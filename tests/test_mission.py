@@ -4,12 +4,16 @@
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from ddvi_core.constants import R_EARTH
+from services.controller import Controller
 from services.deployment import DeploymentError, deployment_from_table, load_deployment
 
 SHORT = """
@@ -178,3 +182,23 @@ def test_truth_step_ends_the_run_on_reentry() -> None:
         truth_step(
             dep, initial_states(dep), 0.0, np.zeros((2, 3)), truth_craft(dep), truth_atmosphere(dep)
         )
+
+
+def test_controller_schedules_drag_on_altitude() -> None:
+    """1.4 km below the model's altitude the air is 19% denser: the controller asks the facet
+    for 19% less area change, so the drag change (what u stands for) is the same, and the
+    learner records the same u."""
+    dep = load_deployment(None)
+    ctrl = Controller(dep, "lqr")
+    x = np.array([0.0, 0.0, 0.0, 0.005])
+    v = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+    u = float((-ctrl.K @ x)[0])
+    alpha = math.radians(dep.spacecraft.normal_angle)
+    h0 = dep.chief.a - R_EARTH
+    for dh in (0.0, -1400.0, 2000.0):
+        sigma = ctrl.command(0.0, x, v, h0 + dh)
+        ratio = math.exp(-dh / dep.atmosphere.scale_height)
+        area_change = math.sin(alpha + 4 * math.atan(sigma)) - math.sin(alpha)
+        assert area_change * ratio == pytest.approx(4 * math.cos(alpha) * u, rel=1e-9)
+        assert ctrl.u_applied == pytest.approx(u, rel=1e-9)
+    assert ctrl.density_ratio(h0 - 1400.0) == pytest.approx(1.191, abs=1e-3)

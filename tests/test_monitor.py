@@ -188,7 +188,12 @@ class Mission:
         for sc in ("alpha", "beta"):
             rc, vc = self.last_truth["chief"]
             rd, vd = self.last_truth[sc]
-            nav = {"sc": sc, "x_hill": rv_to_hill(rc, vc, rd, vd) + 0.01, "valid": True}
+            nav = {
+                "sc": sc,
+                "x_hill": rv_to_hill(rc, vc, rd, vd) + 0.01,
+                "altitude": 300e3,
+                "valid": True,
+            }
             self.pub(f"nav-{sc}", f"nav/{sc}/state", "nav", nav, t)
         if fsw:
             for sc in ("alpha", "beta"):
@@ -393,7 +398,12 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
             f"ddvi/{run}/**", lambda s: received.put((str(s.key_expr), s.payload.to_bytes()))
         )
         with Bus(session, run, "nav-alpha") as bus:
-            body = {"sc": "alpha", "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3], "valid": True}
+            body = {
+                "sc": "alpha",
+                "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3],
+                "altitude": 300e3,
+                "valid": True,
+            }
             assert wait_until(
                 lambda: (
                     bus.publish("nav/alpha/state", "nav", body, 12.5) >= 0 and not received.empty()

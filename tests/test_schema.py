@@ -31,7 +31,7 @@ SAMPLES: dict[str, dict[str, Any]] = {
         "sigma_BN": np.zeros(3),
     },
     "exo": {"v": np.arange(5.0), "phase": 0.3},
-    "nav": {"sc": "deputy1", "x_hill": np.linspace(-1, 1, 6), "valid": True},
+    "nav": {"sc": "deputy1", "x_hill": np.linspace(-1, 1, 6), "altitude": 300e3, "valid": True},
     "cmd": {"sc": "deputy1", "sigma": [0.0, 0.0, 0.15], "for_t": 120.0},
     "gains": {
         "sc": "deputy1",
@@ -69,7 +69,9 @@ def raw(body: Any = None, **header: Any) -> bytes:
         "seq": 0,
         "t": 0.0,
         "src": "test",
-        "body": {"sc": "d1", "x_hill": [0.0] * 6, "valid": True} if body is None else body,
+        "body": {"sc": "d1", "x_hill": [0.0] * 6, "altitude": 300e3, "valid": True}
+        if body is None
+        else body,
     }
     msg.update(header)
     return msgpack.packb({k: v for k, v in msg.items() if v is not ...})
@@ -187,7 +189,7 @@ def test_unknown_and_wrong_schema_and_version() -> None:
 
 def nav(**fields: Any) -> dict[str, Any]:
     """A nav body with fields replaced (a value of ... removes the field)."""
-    body = {"sc": "d", "x_hill": [0.0] * 6, "valid": True, **fields}
+    body = {"sc": "d", "x_hill": [0.0] * 6, "altitude": 300e3, "valid": True, **fields}
     return {k: v for k, v in body.items() if v is not ...}
 
 
