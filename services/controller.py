@@ -9,7 +9,8 @@ Modes: ``lqr`` flies u = -K x + L v with gains from the nominal linear model.  `
 u = -K0 x + eta(t) (K0 need not stabilise; eta a multi-sine inside the attitude limit), feeds
 every navigation sample to ddvi_core's IntervalCollector, runs data-driven value iteration at
 the configured time and switches to the learned K, L.  Every command goes through
-ddvi_core.models.drag_allocation, which makes the facet's drag linear in u.  The learner gets
+ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its nav message), which
+makes the facet's drag linear in u and the same at every altitude.  The learner gets
 what a flight computer knows: Q, R, the output map and reference (C, F), the exosystem E and
 the orbit rate; never A, B or D.  Control input u = sigma3, the relative MRP about the orbit
 normal; sigma1 = sigma2 = 0.
