@@ -25,6 +25,74 @@ def _timed(fn, repeat: int) -> tuple[float, object]:
     return best, out
 
 
+def bench_learning(quick: bool = False) -> list[dict]:
+    """Rows for ``ddvi bench``: the data-driven learner on the mission's linear model against
+    scipy's Riccati solve of the true model, and the online collector's cost per sample
+    against decoding the navigation message that carries the sample."""
+    import numpy as np
+
+    from benchmarks.bus import BODY
+    from ddvi_core.learning import IntervalCollector
+    from ddvi_core.simulate import Exploration, simulate_zoh
+    from services.schema import decode, encode
+
+    system = BUILTIN_SYSTEMS["rendezvous"]()
+    repeat = 1 if quick else 3
+    t_ref, _ = _timed(lambda: solve(system, "lqr"), 20)
+    t_ddvi, sol = _timed(lambda: solve(system, "ddvi"), repeat)
+    err = reference_errors(system, sol)["K_error"]
+    rows = [
+        {
+            "benchmark": "learning",
+            "metric": f"ddvi on the mission: {sol.iterations} iterations, |dK|/|K*| = {err:.1e}",
+            "unit": "ms",
+            "project": 1e3 * t_ddvi,
+            "baseline": 1e3 * t_ref,
+            "baseline_name": "scipy Riccati (true model)",
+            "cost_ratio": t_ddvi / t_ref,
+            "target": "|dK|/|K*| < 1e-3",
+        }
+    ]
+    pr, cfg = system.problem, system.learning
+    samples = list(
+        simulate_zoh(
+            pr.A, pr.B, pr.D, pr.E, np.zeros(pr.n), np.ones(pr.q),
+            K0=cfg.K0_matrix(pr),
+            exploration=Exploration(cfg.exploration_amplitude, (1e-3, 3e-3), 0),
+            sample_period=cfg.sample_period,
+            command_period=cfg.command_period, duration=cfg.interval * 20,
+        )
+    )  # fmt: skip
+
+    def collect() -> None:
+        c = IntervalCollector(pr.n, pr.m, pr.q, cfg.interval)
+        for t, x, u, v in samples:
+            c.add(t, x, u, v)
+
+    payload = encode("nav", BODY, seq=0, t=0.0, src="bench")
+
+    def decode_all() -> None:
+        for _ in samples:
+            decode(payload, "nav")
+
+    t_col, _ = _timed(collect, 5)
+    t_dec, _ = _timed(decode_all, 5)
+    per, per_dec = t_col / len(samples), t_dec / len(samples)
+    rows.append(
+        {
+            "benchmark": "learning",
+            "metric": "online collector, per sample",
+            "unit": "us",
+            "project": 1e6 * per,
+            "baseline": 1e6 * per_dec,
+            "baseline_name": "decoding its nav message",
+            "cost_ratio": per / per_dec,
+            "target": "",
+        }
+    )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--json", action="store_true")

@@ -164,6 +164,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default=None, help="override run.output (the runs folder)")
     p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser("bench", help="benchmarks, each against its baseline in the same run")
+    from benchmarks.run import build_parser as bench_parser
+    from benchmarks.run import run as bench_run
+
+    bench_parser(p)
+    p.set_defaults(func=bench_run)
     p = sub.add_parser("monitor", help="print decoded messages of a running deployment")
     from services.monitor import add_monitor_arguments
 

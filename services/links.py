@@ -84,6 +84,7 @@ class LinkModel:
         self._rank = 0
         self._tiebreak = 0
         self._counters = {"dropped": 0, "duplicated": 0, "reordered": 0, "delayed": 0}
+        self._perfect = spec == LinkSpec()
 
     @property
     def counters(self) -> dict[str, int]:
@@ -101,6 +102,8 @@ class LinkModel:
 
     def offer(self, item: Any, now: float) -> list[Any]:
         """Admit ``item`` at time ``now``; return every item deliverable at ``now``."""
+        if self._perfect and not self._held and self._waiting is None:
+            return [item]  # a perfect link: no draw can change anything
         spec, rng = self.spec, self._rng
         if rng.random() < spec.loss:
             self._counters["dropped"] += 1

@@ -88,10 +88,14 @@ def _type_name(value: object) -> str:
 
 
 def _is_int(value: object) -> bool:
+    if type(value) is int:  # the common case, without the ABC machinery
+        return True
     return isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
 
 
 def _is_real(value: object) -> bool:
+    if type(value) is float or type(value) is int:
+        return True
     return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
@@ -110,6 +114,8 @@ class Float:
     """A finite float; ints are accepted and converted."""
 
     def check(self, where: str, value: object) -> float:
+        if type(value) is float and math.isfinite(value):
+            return value
         if not _is_real(value):
             raise MessageError("bad_field", f"{where}: expected float, got {_type_name(value)}")
         try:
@@ -160,6 +166,24 @@ class Array:
         return f"a {dims} nested list of finite floats"
 
     def check(self, where: str, value: object) -> np.ndarray:
+        if len(self.shape) == 1:
+            # fast paths for what the bus carries (a list of floats off the wire, a float64
+            # vector from a service); anything else takes the general path and its messages
+            n = self.shape[0]
+            if (
+                type(value) is list
+                and (n is None or len(value) == n)
+                and all(type(v) is float and math.isfinite(v) for v in value)
+            ):
+                return np.array(value, dtype=np.float64)
+            if (
+                type(value) is np.ndarray
+                and value.dtype == np.float64
+                and value.ndim == 1
+                and (n is None or value.shape[0] == n)
+                and np.isfinite(value).all()
+            ):
+                return value
         expected = f"{where}: expected {self.describe()}"
         if not isinstance(value, list | tuple | np.ndarray):
             raise MessageError("bad_field", f"{expected}, got {_type_name(value)}")

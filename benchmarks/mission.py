@@ -1,0 +1,267 @@
+"""Mission benchmarks: the distributed run against the single-process run, and swarm scaling.
+
+Throughput: the default deployment through ``ddvi run`` (every service its own process on
+Zenoh, start-up and report included) against ``services.inprocess.run_in_process`` (the same
+truth, navigation and controller code stepped in one process, no bus).
+
+Swarm scaling: 1, 2, 4, 8, 16 LQR deputies holding along-track slots 1 km apart, each with its
+own navigation and controller process; wall time per simulated orbit (the monitor's first to
+last message) and the peak resident memory of every process of the run together (sampled by
+psutil every 0.2 s).  The baseline is the one-deputy run of the same sweep.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import json
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import psutil
+import tomli_w
+
+from services.deployment import load_deployment, resolve
+from services.inprocess import run_in_process
+from services.mission import duration
+
+
+def write_deployment(table: dict[str, Any], folder: Path, name: str) -> Path:
+    """Write a deployment table to ``folder/name.toml`` (its runs go under ``folder``)."""
+    table = copy.deepcopy(table)
+    table.setdefault("run", {})["output"] = str(folder / "runs")
+    path = folder / f"{name}.toml"
+    path.write_bytes(tomli_w.dumps(table).encode())
+    return path
+
+
+def read_table(name_or_path: str | None) -> dict[str, Any]:
+    return tomllib.loads(resolve(name_or_path).read_text())
+
+
+class _PeakRSS:
+    """Peak of the summed resident memory of a process and all its descendants."""
+
+    def __init__(self, pid: int, period: float = 0.2) -> None:
+        self.root = psutil.Process(pid)
+        self.peak = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._poll, args=(period,), daemon=True)
+        self._thread.start()
+
+    def _poll(self, period: float) -> None:
+        while not self._stop.wait(period):
+            total = 0
+            try:
+                procs = [self.root, *self.root.children(recursive=True)]
+            except psutil.Error:
+                continue
+            for p in procs:
+                with contextlib.suppress(psutil.Error):  # it may just have exited
+                    total += p.memory_info().rss
+            self.peak = max(self.peak, total)
+
+    def stop(self) -> int:
+        self._stop.set()
+        self._thread.join()
+        return self.peak
+
+
+def run_distributed(path: Path) -> dict[str, Any]:
+    """``ddvi run path --quiet`` as a new user runs it; wall time, peak RSS, summary."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "run", str(path), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    rss = _PeakRSS(proc.pid)
+    out, err = proc.communicate()
+    wall = time.perf_counter() - t0
+    peak = rss.stop()
+    if proc.returncode != 0:
+        raise RuntimeError(f"ddvi run {path} failed ({proc.returncode}): {err[-2000:]}")
+    summary = json.loads((Path(out.strip().splitlines()[-1]) / "summary.json").read_text())
+    return {
+        "wall_s": wall,
+        "mission_wall_s": summary["wall_s"],
+        "rss_bytes": peak,
+        "summary": summary,
+    }
+
+
+def _row(
+    metric: str,
+    unit: str,
+    project: float,
+    baseline: float,
+    baseline_name: str,
+    ratio: float,
+    target: str = "",
+    bench: str = "mission",
+) -> dict[str, Any]:
+    return {
+        "benchmark": bench,
+        "metric": metric,
+        "unit": unit,
+        "project": project,
+        "baseline": baseline,
+        "baseline_name": baseline_name,
+        "cost_ratio": ratio,
+        "target": target,
+    }
+
+
+def run_single(path: Path) -> dict[str, Any]:
+    """The same deployment stepped in one fresh process (imports included), no bus."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "benchmarks.mission", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    rss = _PeakRSS(proc.pid)
+    _, err = proc.communicate()
+    wall = time.perf_counter() - t0
+    peak = rss.stop()
+    if proc.returncode != 0:
+        raise RuntimeError(f"in-process run of {path} failed: {err[-2000:]}")
+    return {"wall_s": wall, "rss_bytes": peak}
+
+
+def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
+    """The default mission, distributed against in-process (quick: 4 orbits, not 40)."""
+    table = read_table(None)
+    if quick:
+        table["run"]["orbits"] = 4.0
+    with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
+        path = write_deployment(table, Path(tmp), "mission")
+        sim = duration(load_deployment(str(path)))
+        single = run_single(path)
+        dist = run_distributed(path)
+    orbits = table["run"]["orbits"]
+    base = "one process, no bus"
+    ratio = dist["wall_s"] / single["wall_s"]
+    return [
+        _row(
+            f"{orbits:g}-orbit mission, wall, start-up included",
+            "s",
+            dist["wall_s"],
+            single["wall_s"],
+            base,
+            ratio,
+            "<= 2x; 40 orbits < 30 s",
+        ),
+        _row(
+            "simulated s per wall s", "x", sim / dist["wall_s"], sim / single["wall_s"], base, ratio
+        ),
+        _row(
+            "peak memory, all processes",
+            "MB",
+            dist["rss_bytes"] / 1e6,
+            single["rss_bytes"] / 1e6,
+            base,
+            dist["rss_bytes"] / single["rss_bytes"],
+        ),
+    ]
+
+
+def swarm_table(n: int, orbits: float) -> dict[str, Any]:
+    """n LQR deputies on along-track slots 1 km apart about the chief, each starting 240 m
+    above the chief's orbit at its slot."""
+    table = read_table(None)
+    table["run"].update(name=f"swarm{n}", orbits=orbits)
+    template = table["deputy"][0]
+    deputies = []
+    for k in range(n):
+        slot = 1000.0 * (k - (n - 1) / 2)
+        d = copy.deepcopy(template)
+        d.update(name=f"d{k:02d}", controller="lqr", y_ref=slot)
+        d.pop("learning", None)
+        # the chief's argument of latitude plus the slot's angle
+        d["orbit"]["f"] = (
+            table["chief"]["f"] + slot / table["chief"]["a"] * 180.0 / 3.141592653589793
+        )
+        deputies.append(d)
+    table["deputy"] = deputies
+    return table
+
+
+def bench_swarm(quick: bool = False) -> list[dict[str, Any]]:
+    sizes, orbits = ((1, 2, 4), 0.5) if quick else ((1, 2, 4, 8, 16), 2.0)
+    results = {}
+    with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
+        for n in sizes:
+            path = write_deployment(swarm_table(n, orbits), Path(tmp), f"swarm{n}")
+            results[n] = run_distributed(path)
+    base = results[sizes[0]]
+    rows = []
+    for n in sizes:
+        r = results[n]
+        per_orbit = r["mission_wall_s"] / r["summary"]["orbits"]
+        base_orbit = base["mission_wall_s"] / base["summary"]["orbits"]
+        rows.append(
+            _row(
+                f"{n:2d} deputies: wall per orbit",
+                "s",
+                per_orbit,
+                base_orbit,
+                "1 deputy",
+                per_orbit / base_orbit,
+                f"grows ~{n}x if linear",
+                bench="swarm",
+            )
+        )
+        rows.append(
+            _row(
+                f"{n:2d} deputies: peak memory, all processes",
+                "MB",
+                r["rss_bytes"] / 1e6,
+                base["rss_bytes"] / 1e6,
+                "1 deputy",
+                r["rss_bytes"] / base["rss_bytes"],
+                "",
+                bench="swarm",
+            )
+        )
+    return rows
+
+
+def bench_basilisk(quick: bool = False) -> list[dict[str, Any]]:
+    """The same mission on the Basilisk truth, side by side with the built-in one (only where
+    the optional Basilisk backend is installed)."""
+    import importlib.util
+
+    if importlib.util.find_spec("Basilisk") is None:
+        return [
+            _row("skipped: Basilisk is not installed (pip install -e '.[basilisk]')", "",
+                 float("nan"), float("nan"), "-", float("nan"), bench="basilisk")
+        ]  # fmt: skip
+    table = read_table(None)
+    table["run"]["orbits"] = 1.0 if quick else 4.0
+    with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
+        builtin = run_distributed(write_deployment(table, Path(tmp), "builtin"))
+        table.setdefault("environment", {})["backend"] = "basilisk"
+        bsk = run_distributed(write_deployment(table, Path(tmp), "basilisk"))
+    orbits = table["run"]["orbits"]
+    return [
+        _row(f"{orbits:g}-orbit mission on Basilisk, wall", "s", bsk["wall_s"],
+             builtin["wall_s"], "built-in truth", bsk["wall_s"] / builtin["wall_s"],
+             bench="basilisk"),
+        _row("peak memory, all processes", "MB", bsk["rss_bytes"] / 1e6,
+             builtin["rss_bytes"] / 1e6, "built-in truth",
+             bsk["rss_bytes"] / builtin["rss_bytes"], bench="basilisk"),
+    ]  # fmt: skip
+
+
+if __name__ == "__main__":
+    # the single-process baseline, in its own process so its memory is its own
+    run_in_process(load_deployment(sys.argv[1]))

@@ -1,0 +1,99 @@
+"""``ddvi bench``: every benchmark, each against its baseline measured in the same run.
+
+    ddvi bench            # the full set (about 10 minutes on 2 cores)
+    ddvi bench --quick    # short versions, under a minute
+    ddvi bench --json     # one JSON list of rows on stdout
+
+Each row gives the project's figure, the baseline's, and the cost ratio (above 1: the project
+is slower or bigger than its baseline).  Benchmarks are not tests: nothing here asserts.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+import json
+import math
+import platform
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+BENCHMARKS: dict[str, str] = {
+    "bus": "benchmarks.bus:bench_bus",
+    "mission": "benchmarks.mission:bench_mission",
+    "learning": "benchmarks.learning:bench_learning",
+    "swarm": "benchmarks.mission:bench_swarm",
+    "basilisk": "benchmarks.mission:bench_basilisk",
+}
+
+
+def _load(spec: str) -> Callable[[bool], list[dict[str, Any]]]:
+    module, name = spec.split(":")
+    return getattr(__import__(module, fromlist=[name]), name)
+
+
+def _fmt(value: float) -> str:
+    if not math.isfinite(value):
+        return "-"
+    if value == 0 or 0.01 <= abs(value) < 1e5:
+        return f"{value:.3g}" if abs(value) < 100 else f"{value:,.0f}"
+    return f"{value:.2e}"
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="ddvi bench", description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="short versions, under a minute")
+    parser.add_argument("--json", action="store_true", help="machine-readable rows on stdout")
+    parser.add_argument(
+        "--only", nargs="+", choices=list(BENCHMARKS), help="run only these benchmarks"
+    )
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    console = Console(stderr=True)
+    rows: list[dict[str, Any]] = []
+    for name in args.only or list(BENCHMARKS):
+        t0 = time.perf_counter()
+        console.print(f"[bold]bench[/] {name} ...", highlight=False)
+        try:
+            got = _load(BENCHMARKS[name])(args.quick)
+        except Exception as exc:  # one failing benchmark must not hide the others
+            got = [{"benchmark": name, "metric": f"FAILED: {exc}", "unit": "", "project": math.nan,
+                    "baseline": math.nan, "baseline_name": "", "cost_ratio": math.nan,
+                    "target": ""}]  # fmt: skip
+        for row in got:
+            row["seconds"] = time.perf_counter() - t0
+        rows.extend(got)
+    if args.json:
+        meta = {"quick": args.quick, "python": platform.python_version(), "cpus": os.cpu_count()}
+        print(json.dumps({"meta": meta, "rows": rows}, default=float))
+        return 0
+    table = Table(title=f"ddvi bench{' --quick' if args.quick else ''} ({os.cpu_count()} CPUs)")
+    for col in ("benchmark", "metric", "unit", "project", "baseline", "baseline is", "ratio",
+                "target"):  # fmt: skip
+        table.add_column(
+            col, justify="right" if col in ("project", "baseline", "ratio") else "left"
+        )
+    for r in rows:
+        table.add_row(r["benchmark"], r["metric"], r["unit"], _fmt(r["project"]),
+                      _fmt(r["baseline"]), r["baseline_name"], _fmt(r["cost_ratio"]),
+                      r["target"])  # fmt: skip
+    Console(width=200).print(table)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
