@@ -25,25 +25,29 @@ from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive
 from services.mission import (
     ReentryError,
+    Truth,
     duration,
     exostate,
-    initial_states,
     on_grid,
-    truth_atmosphere,
-    truth_craft,
-    truth_step,
+    open_truth,
 )
 from services.service import ServiceContext, run_service
 
 
 def main(ctx: ServiceContext) -> int:
+    truth = open_truth(ctx.deployment)
+    try:
+        return _serve(ctx, truth)
+    finally:
+        truth.close()
+
+
+def _serve(ctx: ServiceContext, truth: Truth) -> int:
     dep = ctx.deployment
     run = dep.run
     deputies = [d.name for d in dep.deputy]
     names = ["chief", *deputies]
     limits = np.array([d.attitude_limit for d in dep.deputy])
-    state = initial_states(dep)
-    craft, atmosphere = truth_craft(dep), truth_atmosphere(dep)
     dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
     counters = {
         "steps": 0,
@@ -125,13 +129,13 @@ def main(ctx: ServiceContext) -> int:
             counters["missing_commands"] += sum(latest_for_t[sc] < t_k - 1e-6 for sc in deputies)
 
     step = 0
-    publish_sample(0.0, 0, state, final=t_end <= 0)
+    publish_sample(0.0, 0, truth.state, final=t_end <= 0)
     t_k = 0.0
     while t_k < t_end - 1e-6 and not ctx.stop.is_set():
         take_commands(t_k, wait=run.mode == "lockstep")
         t_next = t_k + fsw
         try:
-            samples, traj = truth_step(dep, state, t_k, sigma, craft, atmosphere)
+            samples, traj = truth.step(t_k, sigma)
         except ReentryError as exc:
             ctx.log("error", f"mission ended early: {exc}", t_k)
             # tell every service the run is over at the last published sample
@@ -145,7 +149,6 @@ def main(ctx: ServiceContext) -> int:
         for k, t in enumerate(samples):
             step += 1
             publish_sample(float(t), step, traj[k], final=abs(t - t_end) < 1e-6)
-        state = traj[-1]
         t_k = t_next
         counters["steps"] += 1
         if counters["steps"] % run.status_every == 0:

@@ -13,12 +13,9 @@ from services.mission import (
     IN_PLANE,
     duration,
     exostate,
-    initial_states,
     navigation_state,
     on_grid,
-    truth_atmosphere,
-    truth_craft,
-    truth_step,
+    open_truth,
 )
 
 
@@ -27,8 +24,7 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     the controller object (final gains, phase) and its learning log lines."""
     run = dep.run
     fsw, t_end = run.fsw_period, duration(dep)
-    state = initial_states(dep)
-    craft, atm = truth_craft(dep), truth_atmosphere(dep)
+    truth = open_truth(dep)
     ctrls = [Controller(dep, d.name) for d in dep.deputy]
     rng = np.random.default_rng(noise_seed)
     out = {d.name: {"t": [], "x": [], "u": [], "log": []} for d in dep.deputy}
@@ -58,14 +54,16 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
             rec["x"].append(x6)
             rec["u"].append(c.u)
 
-    sample(0.0, state)
+    sample(0.0, truth.state)
     t_k = 0.0
-    while t_k < t_end - 1e-6:
-        samples, traj = truth_step(dep, state, t_k, sigma, craft, atm)
-        for k, t in enumerate(samples):
-            sample(float(t), traj[k])
-        state = traj[-1]
-        t_k += fsw
+    try:
+        while t_k < t_end - 1e-6:
+            samples, traj = truth.step(t_k, sigma)
+            for k, t in enumerate(samples):
+                sample(float(t), traj[k])
+            t_k += fsw
+    finally:
+        truth.close()
     for d, c in zip(dep.deputy, ctrls, strict=True):
         rec = out[d.name]
         rec["t"], rec["x"], rec["u"] = (np.array(rec[k]) for k in ("t", "x", "u"))

@@ -8,6 +8,7 @@ the nominal linear model a deputy's controller is given, and the truth's initial
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -197,6 +198,14 @@ def truth_step(
         )
     except RuntimeError as exc:  # the integrator gives up only on a plunging orbit
         raise ReentryError(f"truth propagation failed after t = {t_k:.0f} s: {exc}") from exc
+    check_altitude(dep, samples, traj)
+    return samples, traj
+
+
+def check_altitude(dep: Deployment, samples: NDArray, traj: NDArray) -> None:
+    """Raise ReentryError, naming the craft, when any sample of ``traj`` (K, 1 + N, 6) at
+    ``samples`` (K,) is below environment.min_altitude: the truth of any backend ends there."""
+    env = dep.environment
     altitude = np.linalg.norm(traj[:, :, :3], axis=2) - R_EARTH
     if np.any(low := altitude < env.min_altitude):
         k, i = np.argwhere(low)[0]
@@ -207,4 +216,57 @@ def truth_step(
             f"{env.min_altitude / 1e3:g} km: it has re-entered; shorten run.orbits or lower "
             "the density"
         )
-    return samples, traj
+
+
+class Truth(Protocol):
+    """An environment backend: the truth of every craft, stepped one flight-software step at a
+    time.  ``state`` is the (1 + N, 6) inertial state now (chief first); ``step`` propagates
+    it over one flight-software step from t_k with each deputy's relative MRP ``sigma`` (N, 3)
+    held and the chief Hill-pointing, and returns the navigation sample times (K,) in
+    (t_k, t_k + fsw] and the states there (K, 1 + N, 6); it raises ReentryError when a craft
+    falls below environment.min_altitude."""
+
+    @property
+    def state(self) -> NDArray[np.float64]: ...
+
+    def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]: ...
+
+    def close(self) -> None: ...
+
+
+class BuiltinTruth:
+    """The built-in backend: ``ddvi_core.truth`` (two-body + J2 + facet drag in one ODE)."""
+
+    def __init__(self, dep: Deployment) -> None:
+        self._dep = dep
+        self._state = initial_states(dep)
+        self._craft, self._atmosphere = truth_craft(dep), truth_atmosphere(dep)
+
+    @property
+    def state(self) -> NDArray[np.float64]:
+        return self._state
+
+    def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]:
+        samples, traj = truth_step(
+            self._dep, self._state, t_k, sigma, self._craft, self._atmosphere
+        )
+        self._state = traj[-1]
+        return samples, traj
+
+    def close(self) -> None:
+        pass
+
+
+def open_truth(dep: Deployment) -> Truth:
+    """The truth backend that ``environment.backend`` names: "builtin" or "basilisk" (the
+    optional extra: pip install 'ddvi-fsw[basilisk]')."""
+    if dep.environment.backend == "basilisk":
+        try:
+            from services.basilisk_truth import BasiliskTruth
+        except ImportError as exc:
+            raise RuntimeError(
+                f'environment.backend = "basilisk" needs Basilisk ({exc}): install the extra '
+                "with pip install -e '.[basilisk]', or set backend = \"builtin\""
+            ) from exc
+        return BasiliskTruth(dep)
+    return BuiltinTruth(dep)
