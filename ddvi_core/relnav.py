@@ -27,13 +27,104 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ddvi_core.constants import MU_EARTH
-from ddvi_core.orbit import _cross, hill_to_curvilinear, rv_to_hill
-from ddvi_core.truth import _gravity
+from ddvi_core.constants import J2_EARTH, MU_EARTH, R_EARTH
+from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
 
 __all__ = ["FRAMES", "path_relative_state", "propagate_gravity", "relative_state"]
 
 FRAMES = ("curvilinear", "path")
+
+
+# Navigation evaluates this once per sample per deputy, on single 3-vectors: numpy's per-call
+# overhead (microseconds) exceeds the arithmetic by far, so the single-sample kernels below work
+# on Python floats.  tests/test_relnav.py checks them against the vectorised ddvi_core.orbit
+# and ddvi_core.truth functions they mirror.
+_Vec = tuple[float, float, float]
+_J2_K = -1.5 * J2_EARTH * MU_EARTH * R_EARTH * R_EARTH
+
+
+def _dot(a: _Vec, b: _Vec) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross3(a: _Vec, b: _Vec) -> _Vec:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _gravity3(r: _Vec, j2: bool) -> _Vec:
+    """Two-body (+ J2) acceleration at r: ``ddvi_core.truth.gravity`` for one position."""
+    x, y, z = r
+    r2 = x * x + y * y + z * z
+    inv_r3 = 1.0 / (r2 * math.sqrt(r2))
+    f = -MU_EARTH * inv_r3
+    if not j2:
+        return (f * x, f * y, f * z)
+    zr2 = z * z / r2
+    k = _J2_K * inv_r3 / r2
+    f_xy = f + k * (1.0 - 5.0 * zr2)
+    return (f_xy * x, f_xy * y, (f + k * (3.0 - 5.0 * zr2)) * z)
+
+
+def _rk4_gravity(r: _Vec, v: _Vec, dt: float, j2: bool, max_step: float) -> tuple[_Vec, _Vec]:
+    steps = max(1, math.ceil(abs(dt) / max_step))
+    h = dt / steps
+    h2, h6 = 0.5 * h, h / 6.0
+    for _ in range(steps):
+        a1 = _gravity3(r, j2)
+        r2 = (r[0] + h2 * v[0], r[1] + h2 * v[1], r[2] + h2 * v[2])
+        v2 = (v[0] + h2 * a1[0], v[1] + h2 * a1[1], v[2] + h2 * a1[2])
+        a2 = _gravity3(r2, j2)
+        r3 = (r[0] + h2 * v2[0], r[1] + h2 * v2[1], r[2] + h2 * v2[2])
+        v3 = (v[0] + h2 * a2[0], v[1] + h2 * a2[1], v[2] + h2 * a2[2])
+        a3 = _gravity3(r3, j2)
+        r4 = (r[0] + h * v3[0], r[1] + h * v3[1], r[2] + h * v3[2])
+        v4 = (v[0] + h * a3[0], v[1] + h * a3[1], v[2] + h * a3[2])
+        a4 = _gravity3(r4, j2)
+        r = tuple(r[i] + h6 * (v[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i]) for i in range(3))
+        v = tuple(v[i] + h6 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i]) for i in range(3))
+    return r, v  # type: ignore[return-value]
+
+
+def _curvilinear3(rc: _Vec, vc: _Vec, rd: _Vec, vd: _Vec) -> tuple[float, ...]:
+    """``hill_to_curvilinear(rc, vc, rv_to_hill(rc, vc, rd, vd))`` for one deputy (6,)."""
+    h = _cross3(rc, vc)
+    r02 = _dot(rc, rc)
+    r0 = math.sqrt(r02)
+    hn = math.sqrt(_dot(h, h))
+    xh = (rc[0] / r0, rc[1] / r0, rc[2] / r0)
+    zh = (h[0] / hn, h[1] / hn, h[2] / hn)
+    yh = _cross3(zh, xh)
+    dr = (rd[0] - rc[0], rd[1] - rc[1], rd[2] - rc[2])
+    w = (h[0] / r02, h[1] / r02, h[2] / r02)  # the Hill frame's rate (Keplerian part)
+    wxr = _cross3(w, dr)
+    dv = (vd[0] - vc[0] - wxr[0], vd[1] - vc[1] - wxr[1], vd[2] - vc[2] - wxr[2])
+    r0dot = _dot(rc, vc) / r0
+    R0, R1, R2 = _dot(xh, dr) + r0, _dot(yh, dr), _dot(zh, dr)
+    D0, D1, D2 = _dot(xh, dv) + r0dot, _dot(yh, dv), _dot(zh, dv)
+    rho2 = R0 * R0 + R1 * R1
+    rho = math.sqrt(rho2)
+    rn = math.sqrt(rho2 + R2 * R2)
+    rn_dot = (R0 * D0 + R1 * D1 + R2 * D2) / rn
+    theta = math.atan2(R1, R0)
+    theta_dot = (R0 * D1 - R1 * D0) / rho2
+    phi = math.atan2(R2, rho)
+    rho_dot = (R0 * D0 + R1 * D1) / rho
+    phi_dot = (D2 * rho - R2 * rho_dot) / (rn * rn)
+    return (
+        rn - r0,
+        r0 * theta,
+        r0 * phi,
+        rn_dot - r0dot,
+        r0dot * theta + r0 * theta_dot,
+        r0dot * phi + r0 * phi_dot,
+    )
+
+
+def _vec3(a: ArrayLike, name: str) -> _Vec:
+    arr = np.asarray(a, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be a finite 3-vector, got {a!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
 def propagate_gravity(
@@ -42,31 +133,10 @@ def propagate_gravity(
     """Two-body (+ J2) state (3,), (3,) after ``dt`` seconds (either sign), by classical RK4
     with steps of at most ``max_step`` s.  Meant for the seconds of a time lag: over 10 s
     its error is below 1e-6 m; drag (about 1e-5 m/s^2) is left out, 5e-4 m over 10 s."""
-    y = np.concatenate([np.asarray(r, dtype=float), np.asarray(v, dtype=float)])
-    if y.shape != (6,) or not np.all(np.isfinite(y)) or not math.isfinite(dt):
-        raise ValueError(f"propagate_gravity needs finite r (3,), v (3,) and dt, got {y}, {dt}")
-    steps = max(1, math.ceil(abs(dt) / max_step))
-    h = dt / steps
-    r_, v_ = y[None, :3], y[None, 3:]
-    for _ in range(steps):
-        # RK4 on (r, v) with gravity straight from its kernel: the validated public entry
-        # point costs more than the arithmetic at this size
-        a1 = _gravity(r_, np.sqrt(np.sum(r_ * r_, axis=1)), j2, MU_EARTH)
-        r2 = r_ + 0.5 * h * v_
-        v2 = v_ + 0.5 * h * a1
-        a2 = _gravity(r2, np.sqrt(np.sum(r2 * r2, axis=1)), j2, MU_EARTH)
-        r3 = r_ + 0.5 * h * v2
-        v3 = v_ + 0.5 * h * a2
-        a3 = _gravity(r3, np.sqrt(np.sum(r3 * r3, axis=1)), j2, MU_EARTH)
-        r4 = r_ + h * v3
-        v4 = v_ + h * a3
-        a4 = _gravity(r4, np.sqrt(np.sum(r4 * r4, axis=1)), j2, MU_EARTH)
-        r_, v_ = (
-            r_ + h / 6.0 * (v_ + 2 * v2 + 2 * v3 + v4),
-            v_ + h / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4),
-        )
-    y = np.concatenate([r_[0], v_[0]])
-    return y[:3], y[3:]
+    if not math.isfinite(dt):
+        raise ValueError(f"propagate_gravity needs a finite dt, got {dt}")
+    r1, v1 = _rk4_gravity(_vec3(r, "r"), _vec3(v, "v"), dt, j2, max_step)
+    return np.array(r1), np.array(v1)
 
 
 def path_relative_state(
@@ -88,23 +158,26 @@ def path_relative_state(
     """
     if not (v_ref > 0 and math.isfinite(v_ref)):
         raise ValueError(f"v_ref must be a positive speed, got {v_ref}")
-    rc0, vc0 = np.asarray(r_c, dtype=float), np.asarray(v_c, dtype=float)
-    rd, vd = np.asarray(r_d, dtype=float), np.asarray(v_d, dtype=float)
+    rc0, vc0 = _vec3(r_c, "r_c"), _vec3(v_c, "v_c")
+    rd, vd = _vec3(r_d, "r_d"), _vec3(v_d, "v_d")
     tau = 0.0
     rc, vc = rc0, vc0
     for _ in range(iterations):
         # the deputy's angle ahead of the chief's point, in that point's orbit plane
-        h = _cross(rc, vc)
-        r2 = float(rc @ rc)
-        x_hat = rc / math.sqrt(r2)
-        z_hat = h / math.sqrt(float(h @ h))
-        theta = math.atan2(float(_cross(z_hat, x_hat) @ rd), float(x_hat @ rd))
-        tau -= theta / (math.sqrt(float(h @ h)) / r2)  # over the chief's u'
-        rc, vc = propagate_gravity(rc0, vc0, -tau, j2=j2)
-    rel = hill_to_curvilinear(rc, vc, rv_to_hill(rc, vc, rd, vd))
-    r0 = float(np.linalg.norm(rc))
-    rate = float(np.linalg.norm(_cross(rc, vc)) / (r0 * r0))
-    r0_dot = float(rc @ vc) / r0
+        h = _cross3(rc, vc)
+        r2 = _dot(rc, rc)
+        rn, hn = math.sqrt(r2), math.sqrt(_dot(h, h))
+        x_hat = (rc[0] / rn, rc[1] / rn, rc[2] / rn)
+        z_hat = (h[0] / hn, h[1] / hn, h[2] / hn)
+        theta = math.atan2(_dot(_cross3(z_hat, x_hat), rd), _dot(x_hat, rd))
+        tau -= theta / (hn / r2)  # over the chief's u'
+        rc, vc = _rk4_gravity(rc0, vc0, -tau, j2, 5.0)
+    rel = _curvilinear3(rc, vc, rd, vd)
+    r02 = _dot(rc, rc)
+    r0 = math.sqrt(r02)
+    h = _cross3(rc, vc)
+    rate = math.sqrt(_dot(h, h)) / r02
+    r0_dot = _dot(rc, vc) / r0
     # u'_d = u'_c + theta' with r0 theta' = ydot - r0' theta, so tau' = 1 - u'_d / u'_c
     tau_dot = -(rel[4] - r0_dot * rel[1] / r0) / (r0 * rate)
     return np.array(

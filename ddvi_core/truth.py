@@ -24,7 +24,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.integrate import solve_ivp
 
 from ddvi_core.constants import J2_EARTH, MU_EARTH, R_EARTH
 from ddvi_core.orbit import _dcm_stack, _stack, elements_to_rv
@@ -319,6 +318,10 @@ def propagate(
             raise ValueError("t_eval must be a non-empty array of finite times")
         if te[0] < t0f or te[-1] > t1f or np.any(np.diff(te) < 0.0):
             raise ValueError(f"t_eval must be increasing and inside [{t0f}, {t1f}]")
+
+    # imported here, not at module level: navigation imports this module for its constants and
+    # kernels and never integrates (scipy.integrate costs 0.4 s of start-up per process)
+    from scipy.integrate import solve_ivp
 
     bc, normal_B = _craft_arrays(craft, n)
     normal = np.einsum("nji,nj->ni", C, normal_B)  # [BN]^T n_B, or [BH]^T n_B in "hill" mode

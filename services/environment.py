@@ -74,19 +74,28 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
     latest_for_t = dict.fromkeys(deputies, -math.inf)
     wall0 = time.monotonic()
 
-    def publish_sample(t: float, step: int, X: np.ndarray, final: bool) -> None:
+    def attitudes(traj: np.ndarray) -> np.ndarray:
+        """sigma_BN (K, 1 + N, 3) of states (K, 1 + N, 6): the chief Hill-pointing, each
+        deputy Hill-pointing composed with its command in force (one batched call a step)."""
+        k = traj.shape[0]
+        HN = hill_frame(traj[..., :3].reshape(-1, 3), traj[..., 3:].reshape(-1, 3))
+        HN = HN.reshape(k, len(names), 3, 3)
+        BN = HN.copy()
+        BN[:, 1:] = mrp_to_dcm(sigma) @ HN[:, 1:] if len(deputies) else HN[:, 1:]
+        return dcm_to_mrp(BN.reshape(-1, 3, 3)).reshape(k, len(names), 3)
+
+    def publish_sample(
+        t: float, step: int, X: np.ndarray, sigma_BN: np.ndarray, final: bool
+    ) -> None:
         if run.mode == "realtime":
             delay = wall0 + t / run.rate - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-        # Hill-pointing chief; deputies Hill-pointing composed with their command
         for i, sc in enumerate(names):
-            HN = hill_frame(X[i, :3], X[i, 3:])
-            BN = HN if i == 0 else mrp_to_dcm(sigma[i - 1]) @ HN
             ctx.bus.publish(
                 f"truth/{sc}",
                 "truth",
-                {"sc": sc, "r_N": X[i, :3], "v_N": X[i, 3:], "sigma_BN": dcm_to_mrp(BN)},
+                {"sc": sc, "r_N": X[i, :3], "v_N": X[i, 3:], "sigma_BN": sigma_BN[i]},
                 t,
             )
         v, phase = exostate(dep, t)
@@ -129,7 +138,7 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
             counters["missing_commands"] += sum(latest_for_t[sc] < t_k - 1e-6 for sc in deputies)
 
     step = 0
-    publish_sample(0.0, 0, truth.state, final=t_end <= 0)
+    publish_sample(0.0, 0, truth.state, attitudes(truth.state[None])[0], final=t_end <= 0)
     t_k = 0.0
     while t_k < t_end - 1e-6 and not ctx.stop.is_set():
         take_commands(t_k, wait=run.mode == "lockstep")
@@ -146,9 +155,10 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
                 t_k,
             )
             break
+        sigma_BN = attitudes(traj)
         for k, t in enumerate(samples):
             step += 1
-            publish_sample(float(t), step, traj[k], final=abs(t - t_end) < 1e-6)
+            publish_sample(float(t), step, traj[k], sigma_BN[k], final=abs(t - t_end) < 1e-6)
         t_k = t_next
         counters["steps"] += 1
         if counters["steps"] % run.status_every == 0:

@@ -8,20 +8,23 @@ the nominal linear model a deputy's controller is given, and the truth's initial
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ddvi_core.constants import MU_EARTH, R_EARTH
-from ddvi_core.lqr import solve_lqr
-from ddvi_core.models import DragRendezvous, harmonic_exosystem, rendezvous_problem
 from ddvi_core.orbit import elements_to_rv, mrp_to_dcm
-from ddvi_core.problem import RegulationProblem
-from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
 from ddvi_core.relnav import relative_state
 from ddvi_core.truth import Atmosphere, Spacecraft, propagate
 from services.deployment import Deployment, Deputy, Orbit
+
+if TYPE_CHECKING:
+    from ddvi_core.models import DragRendezvous
+    from ddvi_core.problem import RegulationProblem
+
+# The model-side imports (scipy.linalg, about 0.3 s) are made inside the functions that need
+# them: a navigation process never does, and a swarm starts one per deputy.
 
 
 class ReentryError(RuntimeError):
@@ -54,6 +57,8 @@ def duration(dep: Deployment) -> float:
 
 
 def exosystem_matrix(dep: Deployment) -> NDArray[np.float64]:
+    from ddvi_core.models import harmonic_exosystem
+
     n = mean_motion(dep)
     return harmonic_exosystem([n, 2 * n], constant=True)
 
@@ -67,6 +72,8 @@ def exostate(dep: Deployment, t: float) -> tuple[NDArray[np.float64], float]:
 def nominal_params(dep: Deployment, deputy: Deputy) -> DragRendezvous:
     """What the deputy's controller is told about the plant: nominal, never the truth's
     factors (density_factor, area_factor)."""
+    from ddvi_core.models import DragRendezvous
+
     sc, atm = dep.spacecraft, dep.atmosphere
     return DragRendezvous(
         a_chief=dep.chief.a,
@@ -84,11 +91,16 @@ def nominal_params(dep: Deployment, deputy: Deputy) -> DragRendezvous:
 
 
 def nominal_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
+    from ddvi_core.models import rendezvous_problem
+
     return rendezvous_problem(nominal_params(dep, deputy))
 
 
 def lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
     """K (1,4) and L (1,5) of the model-based baseline from the nominal model."""
+    from ddvi_core.lqr import solve_lqr
+    from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
+
     pr = nominal_problem(dep, deputy)
     K = solve_lqr(pr.A, pr.B, pr.Q, pr.R).K
     X, U = solve_regulator_equations(pr.A, pr.B, pr.C, pr.D, pr.E, pr.F)

@@ -45,6 +45,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import base64
+import functools
 import json
 import logging
 import math
@@ -146,6 +147,12 @@ def message_json_schema(spec: Schema) -> dict[str, Any]:
     }
 
 
+@functools.cache
+def _recorded_schema(name: str) -> dict[str, Any]:
+    """message_json_schema of a known schema, built once (the recorder asks per message)."""
+    return message_json_schema(SCHEMAS[name])
+
+
 REJECTED_SCHEMA = {
     "title": "ddvi.rejected",
     "type": "object",
@@ -229,7 +236,7 @@ class Recorder:
             "src": msg.src,
             "body": _jsonable(msg.body),
         }
-        schema = message_json_schema(SCHEMAS[msg.schema])
+        schema = _recorded_schema(msg.schema)
         self.write(topic, f"ddvi.{msg.schema}", schema, data, log_ns, ns(msg.t), msg.seq)
 
     def rejected(

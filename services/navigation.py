@@ -29,9 +29,10 @@ def main(ctx: ServiceContext) -> int:
     sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
     bias = np.array(cfg.position_bias + cfg.velocity_bias)
     inbox: queue.Queue = queue.Queue()
-    # one subscription for every craft: zenoh delivers each subscription on its own thread, so
-    # two subscriptions would interleave the chief's and the deputy's samples arbitrarily
-    ctx.bus.subscribe("truth/*", queue_handler(inbox), expected_schema="truth")
+    # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
+    # two subscriptions interleave arbitrarily, and samples are paired by time below
+    for craft in ("chief", sc):
+        ctx.bus.subscribe(f"truth/{craft}", queue_handler(inbox), expected_schema="truth")
     ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
     ctx.ready()
     pending: dict[float, dict[str, np.ndarray]] = {}

@@ -97,3 +97,22 @@ def test_bad_input() -> None:
         path_relative_state(c[:3], c[3:], c[:3], c[3:], -1.0)
     with pytest.raises(ValueError, match="finite"):
         propagate_gravity([np.nan, 0, 0], [0, 1, 0], 1.0)
+
+
+def test_single_sample_kernels_match_the_vectorised_functions(track) -> None:
+    """The float kernels navigation runs on agree with ddvi_core.orbit and ddvi_core.truth."""
+    from ddvi_core.orbit import hill_to_curvilinear, rv_to_hill
+    from ddvi_core.relnav import _curvilinear3, _gravity3
+    from ddvi_core.truth import gravity
+
+    rng = np.random.default_rng(3)
+    for k in range(0, 5500, 500):
+        c = track[k]
+        d = c + np.r_[rng.normal(0, 2e4, 3), rng.normal(0, 5, 3)]
+        expected = hill_to_curvilinear(c[:3], c[3:], rv_to_hill(c[:3], c[3:], d[:3], d[3:]))
+        got = _curvilinear3(tuple(c[:3]), tuple(c[3:]), tuple(d[:3]), tuple(d[3:]))
+        np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9)
+        for j2 in (True, False):
+            np.testing.assert_allclose(
+                _gravity3(tuple(d[:3]), j2), gravity(d[:3], j2=j2), rtol=1e-13, atol=0
+            )
