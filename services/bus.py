@@ -31,6 +31,7 @@ import queue
 import re
 import threading
 import time
+import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -38,7 +39,7 @@ from typing import Any
 
 import zenoh
 
-from services.links import LinkModel
+from services.links import CLOCKS, LinkModel, LinkRule, select_rule
 from services.schema import MAX_PAYLOAD, REASONS, Message, MessageError, decode, encode
 
 log = logging.getLogger("ddvi.bus")
@@ -163,23 +164,44 @@ def _check_topic(topic: str) -> str:
 
 @dataclass
 class _Route:
-    """One subscription: its handler, schema filter and optional link model."""
+    """One subscription: its handler, schema filter, its link models (an explicit one for every
+    message, or one per matching deployment rule, made on first use) and an observer."""
 
     handler: Handler
     expected: str | Collection[str] | None
     link: LinkModel | None
+    observe: Handler | None = None
+    index: int = 0  # the subscription's number on its bus (seeds its link models)
+    models: dict[int, LinkModel] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     subscriber: Any = None
+
+    def all_models(self) -> list[LinkModel]:
+        return ([self.link] if self.link is not None else []) + list(self.models.values())
 
 
 class Bus:
     """One service's endpoint on one session: typed publish/subscribe, liveliness, counters.
 
     ``Bus(session, run, service)``; the session is owned by the caller (see ``open_session``),
-    ``close()`` undeclares what this Bus declared. Usable as a context manager.
+    ``close()`` undeclares what this Bus declared. Usable as a context manager.  ``links`` are
+    the deployment's link rules at this subscriber (``Deployment.links_for``): each received
+    message goes through the model of the first rule matching its publisher and topic, on
+    ``link_clock`` ("sim": the time given to ``pump``; "wall": ``time.monotonic()``), seeded
+    from ``seed``.
     """
 
-    def __init__(self, session: zenoh.Session, run: str, service: str) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        run: str,
+        service: str,
+        links: Iterable[LinkRule] = (),
+        link_clock: str = "sim",
+        seed: int = 0,
+    ) -> None:
+        if link_clock not in CLOCKS:
+            raise ValueError(f"link_clock: expected one of {CLOCKS}, got {link_clock!r}")
         self.session = session
         self.run = check_name("run", run)
         self.service = check_name("service", service)
@@ -196,6 +218,9 @@ class Bus:
             ["sent", "received", "delivered", "rejected", "handler_errors"], 0
         )
         self._counts.update({f"rejected.{r}": 0 for r in sorted(REASONS)})
+        self._rules = list(links)
+        self._link_clock, self._seed = link_clock, seed
+        self._rule_cache: dict[tuple[str, str], int | None] = {}
 
     # -- counters ---------------------------------------------------------------------------
 
@@ -213,11 +238,17 @@ class Bus:
             out = dict(self._counts)
         out.update(dict.fromkeys(_LINK_COUNTERS, 0))
         for route in list(self._routes):
-            if route.link is not None:
-                with route.lock:
-                    for key, value in route.link.counters.items():
+            with route.lock:
+                for model in route.all_models():
+                    for key, value in model.counters.items():
                         out[key] += value
         return out
+
+    def latency(self, publisher: str, topic: str) -> float:
+        """The nominal delay (s) of the deployment link from ``publisher`` on ``topic`` to this
+        service; 0 when no link rule applies."""
+        i = select_rule(self._rules, publisher, topic)
+        return 0.0 if i is None else self._rules[i].spec.delay
 
     # -- publishing -------------------------------------------------------------------------
 
@@ -254,16 +285,20 @@ class Bus:
         handler: Handler,
         expected_schema: str | Collection[str] | None = None,
         link: LinkModel | None = None,
+        observe: Handler | None = None,
     ) -> None:
         """Subscribe to ``ddvi/<run>/<topic_pattern>`` (zenoh wildcards allowed).
 
-        Each sample is decoded and validated (rejects are counted by reason and logged), then
-        passed through ``link`` if given, then handed to ``handler(topic, message)``. Items held
-        by the link are delivered by ``pump``.
+        Each sample is decoded and validated (rejects are counted by reason and logged), passed
+        through ``link`` if given, else through the deployment's matching link rule, and what
+        the link lets through now is handed to ``handler(topic, message)``; items held by a
+        link are delivered by ``pump``.  Then ``observe(topic, message)``, if given, sees every
+        accepted message, whatever the link did with it (delivered, held or dropped): a
+        lock-step loop uses it to know that a message it waits for is accounted for.
         """
         if self._closed:
             raise RuntimeError(f"bus of {self.service} is closed")
-        route = _Route(handler, expected_schema, link)
+        route = _Route(handler, expected_schema, link, observe, index=len(self._routes))
         route.subscriber = self.session.declare_subscriber(
             self.prefix + topic_pattern, lambda sample: self._on_sample(route, sample)
         )
@@ -271,6 +306,26 @@ class Bus:
 
     def _now(self, link: LinkModel) -> float:
         return time.monotonic() if link.clock == "wall" else self._sim_time
+
+    def _model(self, route: _Route, publisher: str, topic: str) -> LinkModel | None:
+        """The link model a message from ``publisher`` on ``topic`` goes through (caller holds
+        route.lock)."""
+        if route.link is not None:
+            return route.link
+        if not self._rules:
+            return None
+        key = (publisher, topic)
+        if key not in self._rule_cache:
+            self._rule_cache[key] = select_rule(self._rules, publisher, topic)
+        i = self._rule_cache[key]
+        if i is None:
+            return None
+        model = route.models.get(i)
+        if model is None:
+            # one seeded stream per (subscriber, rule, route): deterministic for a given seed
+            seed = zlib.crc32(f"{self._seed}/{self.service}/{i}/{route.index}".encode())
+            model = route.models[i] = LinkModel(self._rules[i].spec, seed, self._link_clock)
+        return model
 
     def _on_sample(self, route: _Route, sample: zenoh.Sample) -> None:
         """Zenoh callback: must never raise."""
@@ -293,12 +348,20 @@ class Bus:
                     )
                 return
             self._count("received")
-            if route.link is None:
-                items = [(topic, message)]
-            else:
-                with route.lock:
-                    items = route.link.offer((topic, message), self._now(route.link))
+            with route.lock:
+                model = self._model(route, message.src, topic)
+                items = (
+                    [(topic, message)]
+                    if model is None
+                    else model.offer(
+                        (topic, message),
+                        self._now(model),
+                        sent=message.t if model.clock == "sim" else None,
+                    )
+                )
             self._deliver(route, items)
+            if route.observe is not None:
+                route.observe(topic, message)
         except Exception:
             self._count("handler_errors")
             log.exception("%s: error in bus callback", self.service)
@@ -327,9 +390,11 @@ class Bus:
             return 0
         delivered = 0
         for route in list(self._routes):
-            if route.link is not None:
-                with route.lock:
-                    items = route.link.release(self._now(route.link))
+            with route.lock:
+                items = [
+                    item for model in route.all_models() for item in model.release(self._now(model))
+                ]
+            if items:
                 delivered += self._deliver(route, items)
         return delivered
 

@@ -1,6 +1,6 @@
 """Controller service, one per deputy: the flight software under test.
 
-Inputs:  nav/<deputy>/state (nav), exo/state (exo).
+Inputs:  nav/<deputy>/state (nav), exo/state (exo), clock.
 Outputs: cmd/<deputy>/att (cmd) every flight-software step; ctrl/<deputy>/gains (gains), beaconed
          every step while learning and published whenever the gains change; ctrl/<deputy>/status
          (status); stats/ctrl-<deputy>.
@@ -14,6 +14,12 @@ makes the facet's drag linear in u and the same at every altitude.  The learner 
 what a flight computer knows: Q, R, the output map and reference (C, F), the exosystem E and
 the orbit rate; never A, B or D.  Control input u = sigma3, the relative MRP about the orbit
 normal; sigma1 = sigma2 = 0.
+
+Timing: a flight-software step runs at each multiple of run.fsw_period of the clock, on the
+newest navigation sample it has; with a link delay d on its inputs (the deployment's [[link]])
+that is the sample measured at T - d, and the step waits until that sample is accounted for
+(delivered, or lost by its link).  Samples and steps are taken in time order, a step before the
+sample measured at its own time: with no delay this is exactly ``Controller.on_sample``.
 """
 
 from __future__ import annotations
@@ -41,7 +47,8 @@ from services.mission import (
     on_grid,
     orbit_period,
 )
-from services.service import ServiceContext, run_service
+from services.schema import Message
+from services.service import END_GRACE, ServiceContext, run_service
 
 
 @dataclass
@@ -114,21 +121,36 @@ class Controller:
         return self.u
 
     def on_sample(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> SampleOutcome:
-        """One navigation sample, in time order: on a flight-software step, learn if it is
-        time to, then compute the command (``self.u``); while exploring, feed the collector
-        with the input in force from t on.  The service publishes; the in-process baseline
-        does not: both run exactly this."""
+        """One navigation sample, in time order, when it arrives undelayed: on a
+        flight-software step, ``tick`` with it, then ``collect`` it.  The in-process baseline
+        runs exactly this; the service runs the same two steps, ordered by time."""
         outcome = SampleOutcome(fsw=on_grid(t, self.fsw))
         if outcome.fsw:
-            if self.phase == "exploring" and t >= self.next_attempt - 1e-6:
-                outcome.learn_log = self.learn(t)
-            self.command(t, x, v, altitude)
-        if self.phase == "exploring":
-            try:
-                self.collector.add(t, x, [self.u_applied], v)
-            except LearningError as exc:
-                outcome.rejected = f"sample at t = {t} rejected: {exc}"
+            outcome.learn_log = self.tick(t, x, v, altitude)
+        outcome.rejected = self.collect(t, x, v)
         return outcome
+
+    def tick(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:
+        """A flight-software step at t with the newest navigation sample (x (4,), exostate v,
+        altitude), measured at t or earlier: learn if it is time to (returns the log line),
+        then compute the command in force from t on (``self.u``)."""
+        learn_log = None
+        if self.phase == "exploring" and t >= self.next_attempt - 1e-6:
+            learn_log = self.learn(t)
+        self.command(t, x, v, altitude)
+        return learn_log
+
+    def collect(self, t: float, x: np.ndarray, v: np.ndarray) -> str | None:
+        """While exploring, feed the collector the sample with the input in force (what this
+        controller commanded; a link delay it does not know of shifts the plant's); returns
+        why the collector refused it, if it did."""
+        if self.phase != "exploring":
+            return None
+        try:
+            self.collector.add(t, x, [self.u_applied], v)
+        except LearningError as exc:
+            return f"sample at t = {t} rejected: {exc}"
+        return None
 
     def learn(self, t: float) -> str:
         """Run data-driven value iteration on the data so far; switch gains on success."""
@@ -177,21 +199,38 @@ class Controller:
         )
 
 
+_SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
+
+
 def main(ctx: ServiceContext) -> int:
     sc = ctx.name.removeprefix("ctrl-")
     ctrl = Controller(ctx.deployment, sc)
     run = ctx.deployment.run
+    fsw, nav_period = run.fsw_period, ctrl.deputy.navigation.period
     inbox: queue.Queue = queue.Queue()
-    ctx.bus.subscribe(f"nav/{sc}/state", queue_handler(inbox), expected_schema="nav")
-    ctx.bus.subscribe("exo/state", queue_handler(inbox), expected_schema="exo")
+
+    def seen(_topic: str, msg: Message) -> None:
+        inbox.put((_SEEN, msg))
+
+    ctx.bus.subscribe(f"nav/{sc}/state", queue_handler(inbox), expected_schema="nav", observe=seen)
+    ctx.bus.subscribe("exo/state", queue_handler(inbox), expected_schema="exo", observe=seen)
     ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
     ctx.ready()
+    # A sample measured at t reaches this controller at t + delay (its links' nominal delay):
+    # the flight-software step at T flies on the newest sample measured by T - delay.
+    delay = max(
+        ctx.bus.latency(f"nav-{sc}", f"nav/{sc}/state"), ctx.bus.latency("environment", "exo/state")
+    )
     exo: dict[float, np.ndarray] = {}
     navs: dict[float, tuple[np.ndarray, float]] = {}  # in-plane state, altitude
+    ready: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}  # paired, not yet collected
+    last: tuple[float, np.ndarray, np.ndarray, float] | None = None  # newest collected sample
     counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0}
+    clock = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}  # time reached, seen up to
     steps = 0
+    next_tick = 0.0
     final_t: float | None = None
-    last_t = -1.0
+    final_seen = 0.0
 
     def publish_gains(t: float) -> None:
         ctx.bus.publish(
@@ -226,54 +265,113 @@ def main(ctx: ServiceContext) -> int:
             t,
         )
 
+    def expected_sample(T: float) -> float:
+        """The newest sample the step at T can have (negative: none yet)."""
+        return math.floor((T - delay) / nav_period + 1e-9) * nav_period
+
+    def tick_ready(T: float) -> bool:
+        """The clock has reached T and the sample the step flies on is accounted for
+        (delivered, or held or lost by its link)."""
+        want = expected_sample(T)
+        return clock["now"] >= T - 1e-6 and (
+            want < -1e-6 or (clock["nav"] >= want - 1e-6 and clock["exo"] >= want - 1e-6)
+        )
+
+    def tick(T: float) -> None:
+        nonlocal steps
+        on_time = [t for t in ready if t <= T + 1e-6]
+        newest = (max(on_time), *ready[max(on_time)]) if on_time else last
+        if newest is None:  # nothing measured yet (a delayed start): hold the zero command
+            learn_log = None
+        else:
+            _, x, v, altitude = newest
+            learn_log = ctrl.tick(T, x, v, altitude)
+        if learn_log is not None:
+            counters["learn_attempts"] += 1
+            ctx.log("info", learn_log, T)
+            publish_gains(T)
+        ctx.bus.publish(
+            f"cmd/{sc}/att", "cmd", {"sc": sc, "sigma": [0.0, 0.0, ctrl.u], "for_t": T}, T
+        )
+        counters["commands"] += 1
+        steps += 1
+        if ctrl.phase == "exploring":
+            publish_gains(T)  # beaconed during learning
+        if steps % run.status_every == 0:
+            publish_status(T)
+            ctx.publish_stats(T, counters)
+
+    def collect(t: float) -> None:
+        nonlocal last
+        x, v, altitude = ready.pop(t)
+        rejected = ctrl.collect(t, x, v)
+        if rejected is not None:
+            counters["samples_rejected"] += 1
+            ctx.log("warning", rejected, t)
+        last = (t, x, v, altitude)
+
+    def advance() -> None:
+        """Collect samples and run flight-software steps in time order (a step before the
+        sample measured at its own time), each as soon as it can be."""
+        nonlocal next_tick
+        while True:
+            first = min(ready, default=math.inf)
+            if first < next_tick - 1e-6:
+                collect(first)
+            elif final_t is not None and next_tick > final_t + 1e-6:
+                if first <= final_t + 1e-6:
+                    collect(first)
+                else:
+                    return
+            elif tick_ready(next_tick):
+                tick(next_tick)
+                next_tick += fsw
+            else:
+                return
+
+    def done() -> bool:
+        if final_t is None or next_tick <= final_t + 1e-6:
+            return False
+        return last is not None and last[0] >= expected_sample(final_t) - 1e-6
+
     publish_gains(0.0)
     while not ctx.stop.is_set():
         try:
-            _, msg = inbox.get(timeout=0.5)
+            kind, msg = inbox.get(timeout=0.5)
         except queue.Empty:
+            if final_t is not None and time.monotonic() - final_seen > END_GRACE:
+                break  # the last samples were lost on their links
             continue
-        if msg.schema == "clock":
+        if kind == _SEEN:
+            key = "nav" if msg.schema == "nav" else "exo"
+            clock[key] = max(clock[key], msg.t)
+        elif msg.schema == "clock":
+            clock["now"] = max(clock["now"], msg.t)
+            ctx.bus.pump(msg.t)  # release what the links held until now
             if msg.body["final"]:
-                final_t = msg.t
-        elif msg.schema == "exo":
-            exo[msg.t] = msg.body["v"]
+                final_t, final_seen = msg.t, time.monotonic()
         else:
-            navs[msg.t] = (msg.body["x_hill"][list(IN_PLANE)], msg.body["altitude"])
-        # act on every navigation sample whose exostate has arrived, in time order
-        for t in sorted(t for t in navs if t in exo):
-            (x, altitude), v = navs.pop(t), exo.pop(t)
-            if t <= last_t:
-                counters["samples_rejected"] += 1  # stale or replayed
-                continue
-            last_t = t
-            outcome = ctrl.on_sample(t, x, v, altitude)
-            if outcome.learn_log is not None:
-                counters["learn_attempts"] += 1
-                ctx.log("info", outcome.learn_log, t)
-                publish_gains(t)
-            if outcome.fsw:
-                u = ctrl.u
-                ctx.bus.publish(
-                    f"cmd/{sc}/att", "cmd", {"sc": sc, "sigma": [0.0, 0.0, u], "for_t": t}, t
-                )
-                counters["commands"] += 1
-                steps += 1
-                if ctrl.phase == "exploring":
-                    publish_gains(t)  # beaconed during learning
-                if steps % run.status_every == 0:
-                    publish_status(t)
-                    ctx.publish_stats(t, counters)
-            if outcome.rejected is not None:
-                counters["samples_rejected"] += 1
-                ctx.log("warning", outcome.rejected, t)
-        # forget exostates that no navigation sample will claim
-        for t in [t for t in exo if t < last_t]:
-            del exo[t]
-        if final_t is not None and last_t >= final_t - 1e-6:
+            if msg.schema == "exo":
+                exo[msg.t] = msg.body["v"]
+            else:
+                navs[msg.t] = (msg.body["x_hill"][list(IN_PLANE)], msg.body["altitude"])
+            for t in [t for t in navs if t in exo]:
+                (x, altitude), v = navs.pop(t), exo.pop(t)
+                if last is not None and t <= last[0]:
+                    counters["samples_rejected"] += 1  # stale or replayed
+                else:
+                    ready[t] = (x, v, altitude)
+            # forget exostates that no navigation sample will claim
+            for t in [t for t in exo if last is not None and t < last[0]]:
+                del exo[t]
+        if inbox.empty():  # what pump() just released is queued: take it in first
+            advance()
+        if done():
             break
-    publish_gains(last_t)
-    publish_status(last_t)
-    ctx.publish_stats(last_t, counters)
+    t_end = next_tick - fsw
+    publish_gains(t_end)
+    publish_status(t_end)
+    ctx.publish_stats(t_end, counters)
     return 0
 
 

@@ -14,10 +14,12 @@ import tomllib
 import types
 import typing
 from dataclasses import MISSING, dataclass, field, fields
+from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any
 
 from ddvi_core.relnav import FRAMES
+from services.links import LinkRule, LinkSpec
 
 __all__ = [
     "Atmosphere",
@@ -26,6 +28,7 @@ __all__ = [
     "Deputy",
     "Environment",
     "Learning",
+    "Link",
     "Navigation",
     "Orbit",
     "Run",
@@ -69,6 +72,7 @@ class Environment:
     max_step: float = 60.0  # integrator step bound, s
     min_altitude: float = 150e3  # m above R_E: a craft below it has re-entered; the run ends
     rtol: float = 1e-11
+    basilisk_step: float = 1.0  # Basilisk backend: RK4 step, s (density, attitude held over it)
 
 
 @dataclass(frozen=True)
@@ -139,6 +143,28 @@ class Deputy:
 
 
 @dataclass(frozen=True)
+class Link:
+    """One impaired link (DESIGN.md section 2): messages from the publishing service(s) to the
+    subscribing service(s), on the topics that match; names and topics are shell-style globs
+    (``nav-*``, ``cmd/*/att``).  The first [[link]] that matches a message applies.  Times are
+    simulation seconds in lock-step mode, wall seconds in real-time mode; the clock is never
+    delayed (it is the time base), and the monitor records what is published, unimpaired."""
+
+    publisher: str = "*"
+    subscriber: str = "*"
+    topic: str = "*"
+    delay: float = 0.0  # s
+    jitter: float = 0.0  # s, uniform on [0, jitter] on top of the delay
+    loss: float = 0.0  # probability
+    duplicate: float = 0.0  # probability
+    reorder: float = 0.0  # probability that a message swaps with the next one
+
+    @property
+    def spec(self) -> LinkSpec:
+        return LinkSpec(self.delay, self.jitter, self.loss, self.duplicate, self.reorder)
+
+
+@dataclass(frozen=True)
 class Deployment:
     run: Run = field(default_factory=Run)
     bus: Bus = field(default_factory=Bus)
@@ -147,6 +173,7 @@ class Deployment:
     spacecraft: SpacecraftSpec = field(default_factory=SpacecraftSpec)
     chief: Orbit = field(default_factory=Orbit)
     deputy: list[Deputy] = field(default_factory=list)
+    link: list[Link] = field(default_factory=list)
     path: str = ""
 
     @property
@@ -156,6 +183,14 @@ class Deployment:
         for d in self.deputy:
             names += [f"nav-{d.name}", f"ctrl-{d.name}"]
         return [*names, "environment"]
+
+    def links_for(self, subscriber: str) -> list[LinkRule]:
+        """The link rules that apply at one subscribing service, in file order."""
+        return [
+            LinkRule(k.publisher, k.topic, k.spec)
+            for k in self.link
+            if fnmatchcase(subscriber, k.subscriber)
+        ]
 
     def deputy_named(self, name: str) -> Deputy:
         for d in self.deputy:
@@ -266,6 +301,10 @@ def validate(dep: Deployment) -> None:
         )
     _positive("environment.density_factor", dep.environment.density_factor)
     _positive("environment.max_step", dep.environment.max_step)
+    _positive("environment.basilisk_step", dep.environment.basilisk_step)
+    if dep.environment.backend == "basilisk":
+        _multiple("run.nav_period", r.nav_period, dep.environment.basilisk_step,
+                  "environment.basilisk_step")  # fmt: skip
     for key in ("mass", "area", "cd"):
         _positive(f"spacecraft.{key}", getattr(dep.spacecraft, key))
     for key in ("rho0", "scale_height"):
@@ -325,12 +364,34 @@ def validate(dep: Deployment) -> None:
             )
 
 
+def _validate_links(dep: Deployment) -> None:
+    services = dep.services
+    for k, link in enumerate(dep.link):
+        w = f"link[{k}]"
+        try:
+            link.spec  # noqa: B018 (validates the numbers)
+        except ValueError as exc:
+            raise DeploymentError(str(exc).replace("LinkSpec.", f"{w}.")) from None
+        for key in ("publisher", "subscriber"):
+            pattern = getattr(link, key)
+            if not any(fnmatchcase(s, pattern) for s in services):
+                raise DeploymentError(
+                    f"{w}.{key}: {pattern!r} matches no service; services: {', '.join(services)}"
+                )
+        if link.subscriber == "monitor":
+            raise DeploymentError(
+                f"{w}.subscriber: the monitor records what is published, unimpaired; impair "
+                "the links between flight services"
+            )
+
+
 def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     dep = parse_table(Deployment, table, "")
     dep = Deployment(
         **{f.name: getattr(dep, f.name) for f in fields(Deployment) if f.name != "path"}, path=path
     )
     validate(dep)
+    _validate_links(dep)
     return dep
 
 

@@ -7,9 +7,11 @@ Outputs: truth/<sc> (truth) for the chief and every deputy, exo/state (exo) and 
 Propagates every craft in one ODE (two-body + J2 + facet drag, ddvi_core.truth), one
 flight-software step at a time, with each deputy's commanded relative MRP (clipped to its
 attitude limit) held over the step.  Lock-step mode: after publishing the samples of step t_k it
-waits for every controller's command for t_k, or until the wall-clock deadline; a missing
-command leaves the last one in force (zero-order hold, as an actuator would) and is counted.
-Real-time mode: paces the samples to wall time times run.rate and never waits.
+waits until every controller's command for the step its link delay maps to (issued at T, it
+arrives at T + delay, so the newest that can act from t_k is for floor((t_k - delay) / fsw)
+steps) is accounted for (delivered, or dropped by its link), or until the wall-clock deadline;
+a missing command leaves the last one in force (zero-order hold, as an actuator would) and is
+counted.  Real-time mode: paces the samples to wall time times run.rate and never waits.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from services.mission import (
     open_truth,
 )
 from services.service import ServiceContext, run_service
+
+_OBSERVED = "observed"  # inbox tag of a command seen by the link layer (see subscribe)
 
 
 def main(ctx: ServiceContext) -> int:
@@ -59,7 +63,14 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
     }
 
     inbox: queue.Queue = queue.Queue()
-    ctx.bus.subscribe("cmd/*/att", queue_handler(inbox), expected_schema="cmd")
+    # every command that reaches this host is also observed after its link has delivered, held
+    # or dropped it: the lock-step wait ends when the command it waits for is accounted for
+    ctx.bus.subscribe(
+        "cmd/*/att",
+        queue_handler(inbox),
+        expected_schema="cmd",
+        observe=lambda _topic, msg: inbox.put((_OBSERVED, msg)),
+    )
     ctx.ready()
     others = [s for s in dep.services if s != ctx.name]
     alive = wait_for_alive(ctx.bus.session, ctx.run, others, run.startup_timeout)
@@ -71,7 +82,10 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         return 1
 
     sigma = np.zeros((len(deputies), 3))  # commands in force
-    latest_for_t = dict.fromkeys(deputies, -math.inf)
+    latest_for_t = dict.fromkeys(deputies, -math.inf)  # step of the command in force
+    seen_for_t = dict.fromkeys(deputies, -math.inf)  # newest command accounted for
+    # a command issued at T reaches the truth at T + the link's delay (DESIGN.md section 3)
+    cmd_delay = {sc: ctx.bus.latency(f"ctrl-{sc}", f"cmd/{sc}/att") for sc in deputies}
     wall0 = time.monotonic()
 
     def attitudes(traj: np.ndarray) -> np.ndarray:
@@ -107,35 +121,53 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
             t,
         )
 
+    def expected_step(sc: str, t_k: float) -> float:
+        """The newest command step that can be in force from t_k on (negative: none yet)."""
+        return math.floor((t_k - cmd_delay[sc]) / fsw + 1e-9) * fsw
+
     def take_commands(t_k: float, wait: bool) -> None:
-        """Apply the newest command of each deputy; in lock-step wait for those for t_k."""
+        """Apply the newest command of each deputy that its link has delivered by t_k; in
+        lock-step wait until the one for the step its delay maps to is accounted for."""
+        ctx.bus.pump(t_k)  # release what the links held until t_k
+        expected = {sc: expected_step(sc, t_k) for sc in deputies}
         deadline = time.monotonic() + run.command_deadline
-        while True:
-            missing = [sc for sc in deputies if latest_for_t[sc] < t_k - 1e-6]
-            if not missing or ctx.stop.is_set():
-                break
-            timeout = deadline - time.monotonic() if wait else 0.0
+
+        def outstanding(sc: str) -> bool:
+            due = expected[sc] - 1e-6
+            return expected[sc] >= 0 and latest_for_t[sc] < due and seen_for_t[sc] < due
+
+        while not ctx.stop.is_set():
+            waiting = wait and any(outstanding(sc) for sc in deputies)
             try:
-                _, msg = inbox.get(timeout=max(timeout, 0.0)) if wait else inbox.get_nowait()
+                if waiting:
+                    kind, msg = inbox.get(timeout=max(deadline - time.monotonic(), 0.0))
+                else:
+                    kind, msg = inbox.get_nowait()
             except queue.Empty:
                 break
-            sc, s = msg.body["sc"], msg.body["sigma"]
+            sc = msg.body["sc"]
             if sc not in latest_for_t:
-                counters["bad_commands"] += 1
+                counters["bad_commands"] += kind != _OBSERVED
                 continue
             for_t = msg.body["for_t"]
-            if for_t <= latest_for_t[sc]:
-                counters["stale_commands"] += 1  # older than what is in force: a replay
+            if kind == _OBSERVED:
+                seen_for_t[sc] = max(seen_for_t[sc], for_t)
                 continue
-            if for_t < t_k - 1e-6:
+            if for_t <= latest_for_t[sc]:
+                counters["stale_commands"] += 1  # not newer than the one in force: a replay
+                continue
+            if for_t < expected[sc] - 1e-6:
                 counters["late_commands"] += 1
             i = deputies.index(sc)
-            clipped = np.clip(s, -limits[i], limits[i])
-            counters["clipped_commands"] += int(np.any(clipped != s))
+            s_cmd = msg.body["sigma"]
+            clipped = np.clip(s_cmd, -limits[i], limits[i])
+            counters["clipped_commands"] += int(np.any(clipped != s_cmd))
             sigma[i] = clipped
             latest_for_t[sc] = for_t
         if wait:
-            counters["missing_commands"] += sum(latest_for_t[sc] < t_k - 1e-6 for sc in deputies)
+            counters["missing_commands"] += sum(
+                expected[sc] >= 0 and latest_for_t[sc] < expected[sc] - 1e-6 for sc in deputies
+            )
 
     step = 0
     publish_sample(0.0, 0, truth.state, attitudes(truth.state[None])[0], final=t_end <= 0)

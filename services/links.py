@@ -5,6 +5,7 @@ Fully deterministic for a given seed and sequence of calls.
 
 Inputs/outputs:
     LinkSpec(delay, jitter, loss, duplicate, reorder)   validated parameters
+    LinkRule(publisher, topic, spec)  which messages a spec applies to (a deployment's [[link]])
     LinkModel(spec, seed, clock)
         offer(item, now) -> list     admit one item, return everything deliverable at ``now``
         release(now) -> list         return held items due at ``now``, in due order
@@ -31,8 +32,9 @@ from __future__ import annotations
 import heapq
 import math
 import random
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
+from fnmatch import fnmatchcase
 from typing import Any
 
 CLOCKS = ("sim", "wall")
@@ -70,6 +72,33 @@ class LinkSpec:
         return cls(**table)
 
 
+@dataclass(frozen=True)
+class LinkRule:
+    """Which messages a LinkSpec applies to, at one subscriber: those whose publishing service
+    (the header's ``src``) matches ``publisher`` and whose topic (below ``ddvi/<run>/``) matches
+    ``topic``, both shell-style globs.  The clock is never impaired: it is the emulator's time
+    base, not a flight message."""
+
+    publisher: str
+    topic: str
+    spec: LinkSpec
+
+    def matches(self, publisher: str, topic: str) -> bool:
+        return (
+            topic != "clock"
+            and fnmatchcase(publisher, self.publisher)
+            and fnmatchcase(topic, self.topic)
+        )
+
+
+def select_rule(rules: Sequence[LinkRule], publisher: str, topic: str) -> int | None:
+    """Index of the first rule matching (publisher, topic), or None."""
+    for i, rule in enumerate(rules):
+        if rule.matches(publisher, topic):
+            return i
+    return None
+
+
 class LinkModel:
     """Applies a LinkSpec to a stream of items; see the module docstring for the semantics."""
 
@@ -100,8 +129,11 @@ class LinkModel:
         self._tiebreak += 1
         heapq.heappush(self._held, (due, rank, self._tiebreak, item))
 
-    def offer(self, item: Any, now: float) -> list[Any]:
-        """Admit ``item`` at time ``now``; return every item deliverable at ``now``."""
+    def offer(self, item: Any, now: float, sent: float | None = None) -> list[Any]:
+        """Admit ``item`` at time ``now``; return every item deliverable at ``now``.
+
+        ``sent``: when the item left its publisher, if not ``now`` (a lock-step receiver's clock
+        need not be the sender's: the latency then runs from the message's own time)."""
         if self._perfect and not self._held and self._waiting is None:
             return [item]  # a perfect link: no draw can change anything
         spec, rng = self.spec, self._rng
@@ -118,7 +150,7 @@ class LinkModel:
             latency = spec.delay + (rng.uniform(0.0, spec.jitter) if spec.jitter > 0 else 0.0)
             if latency > 0:
                 self._counters["delayed"] += 1
-            dues.append(now + latency)
+            dues.append((now if sent is None else sent) + latency)
         self._rank += 1
         rank = float(self._rank)
         if self._waiting is not None:

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import queue
 import sys
+import time
 
 import numpy as np
 
 from ddvi_core.constants import R_EARTH
 from services.bus import queue_handler
 from services.mission import navigation_state, on_grid
-from services.service import ServiceContext, run_service
+from services.service import END_GRACE, ServiceContext, run_service
 
 
 def main(ctx: ServiceContext) -> int:
@@ -38,16 +39,21 @@ def main(ctx: ServiceContext) -> int:
     pending: dict[float, dict[str, np.ndarray]] = {}
     counters = {"published": 0, "unmatched": 0}
     final_t: float | None = None
+    final_seen = 0.0  # wall time the final clock arrived
+    truth_delay = max(ctx.bus.latency("environment", f"truth/{c}") for c in ("chief", sc))
     last_t = -1.0  # last published sample
     last_pair = -1.0  # last sample for which both truths arrived
     while not ctx.stop.is_set():
         try:
             _, msg = inbox.get(timeout=0.5)
         except queue.Empty:
+            if final_t is not None and time.monotonic() - final_seen > END_GRACE:
+                break  # the last truth was lost on its link: nothing more will come
             continue
         if msg.schema == "clock":
+            ctx.bus.pump(msg.t)  # release the truth the links held until now
             if msg.body["final"]:
-                final_t = msg.t
+                final_t, final_seen = msg.t, time.monotonic()
         elif msg.body["sc"] in ("chief", sc):
             slot = pending.setdefault(msg.t, {})
             slot[msg.body["sc"]] = np.concatenate([msg.body["r_N"], msg.body["v_N"]])
@@ -63,13 +69,15 @@ def main(ctx: ServiceContext) -> int:
                     ctx.bus.publish(f"nav/{sc}/state", "nav", body, msg.t)
                     counters["published"] += 1
                     last_t = msg.t
-            # a half pair well behind the newest sample will never complete (a lost message)
-            horizon = msg.t - 10 * ctx.deployment.run.nav_period
+            # a half pair well behind the newest sample will never complete (a lost message);
+            # the two subscriptions can drift apart by the steps the environment runs ahead
+            # of a delayed control loop, so "well behind" is ten flight-software steps
+            horizon = msg.t - 10 * ctx.deployment.run.fsw_period
             for t in [t for t in pending if t < horizon]:
                 del pending[t]
                 counters["unmatched"] += 1
-        if final_t is not None and last_pair >= final_t - 1e-6:
-            break
+        if final_t is not None and last_pair >= final_t - truth_delay - 1e-6:
+            break  # truth measured later is still on its link at the end of the mission
     ctx.publish_stats(last_t, counters)
     return 0
 

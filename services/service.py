@@ -25,6 +25,9 @@ from services.deployment import Deployment, DeploymentError, load_deployment
 
 log = logging.getLogger("ddvi")
 
+END_GRACE = 2.0
+"""Wall seconds a service waits, after the final clock, for a message its link may have lost."""
+
 
 @dataclass
 class ServiceContext:
@@ -97,7 +100,14 @@ def run_service(
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     with open_session(bus_settings(dep, args.hub)) as session:
-        bus = Bus(session, args.run, args.name)
+        bus = Bus(
+            session,
+            args.run,
+            args.name,
+            links=dep.links_for(args.name),
+            link_clock="sim" if dep.run.mode == "lockstep" else "wall",
+            seed=dep.run.seed,
+        )
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out)
             status = main(ctx)

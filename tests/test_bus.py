@@ -24,7 +24,7 @@ from services.bus import (
     zenoh_config,
 )
 from services.launcher import free_port
-from services.links import LinkModel, LinkSpec
+from services.links import LinkModel, LinkRule, LinkSpec
 from services.schema import MAX_PAYLOAD, Message, MessageError, encode
 
 TIMEOUT = 5.0
@@ -201,6 +201,40 @@ def test_link_model_holds_until_receiver_sim_time(
         assert rx.pump(sim_time=9.0) == 0
         assert rx.pump(sim_time=10.0) == 1
         assert inbox.get_nowait()[1].schema == "nav"
+
+
+def test_deployment_link_rules_apply_per_publisher(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """A rule impairs only its publisher's messages; the observer sees every message, held or
+    not; latency() reports the rule's nominal delay."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    seen: Inbox = queue.Queue()
+    rules = [LinkRule("nav-*", "nav/*/state", LinkSpec(delay=10.0))]
+    with (
+        Bus(hub, run, "controller", links=rules) as rx,
+        Bus(svc, run, "nav-deputy1") as nav,
+        Bus(svc, run, "spoofer") as other,
+    ):
+        rx.subscribe("nav/*/state", queue_handler(inbox), "nav", observe=queue_handler(seen))
+        assert rx.latency("nav-deputy1", "nav/deputy1/state") == 10.0
+        assert rx.latency("spoofer", "nav/deputy1/state") == 0.0
+        connect(nav, seen, "nav/deputy1/state")
+        while not seen.empty():
+            seen.get_nowait()
+        while not inbox.empty():
+            inbox.get_nowait()
+        rx.pump(sim_time=100.0)
+        inbox.queue.clear()
+        nav.publish("nav/deputy1/state", "nav", nav_body(1.0), t=200.0)
+        other.publish("nav/deputy1/state", "nav", nav_body(2.0), t=200.0)
+        assert [seen.get(timeout=TIMEOUT)[1].src for _ in range(2)].count("nav-deputy1") == 1
+        assert inbox.get(timeout=TIMEOUT)[1].src == "spoofer"  # no rule: straight through
+        assert inbox.empty()
+        assert rx.pump(sim_time=209.0) == 0
+        assert rx.pump(sim_time=210.0) == 1  # sent at 200, 10 s link
+        assert inbox.get_nowait()[1].src == "nav-deputy1"
 
 
 def test_liveliness(sessions: tuple[zenoh.Session, zenoh.Session], run: str) -> None:

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from services.links import LinkModel, LinkSpec
+from services.links import LinkModel, LinkRule, LinkSpec, select_rule
 
 
 def run(model: LinkModel, n: int, step: float = 1.0) -> list[int]:
@@ -115,3 +115,25 @@ def test_deterministic_for_a_seed() -> None:
     out_a, out_b, out_c = run(a, 500), run(b, 500), run(c, 500)
     assert out_a == out_b and a.counters == b.counters
     assert out_a != out_c
+
+
+def test_latency_runs_from_the_send_time() -> None:
+    """A lock-step receiver may be ahead of the sender: the delay counts from the message's
+    own time, not from when the receiver saw it."""
+    model = LinkModel(LinkSpec(delay=60.0), seed=0)
+    assert model.offer("cmd@0", now=60.0, sent=0.0) == ["cmd@0"]  # due at 60: on time
+    assert model.offer("cmd@60", now=90.0, sent=60.0) == []
+    assert model.release(119.0) == []
+    assert model.release(120.0) == ["cmd@60"]
+
+
+def test_rules_match_publisher_and_topic_but_never_the_clock() -> None:
+    rules = [
+        LinkRule("nav-*", "nav/*/state", LinkSpec(delay=10.0)),
+        LinkRule("environment", "*", LinkSpec(loss=0.1)),
+    ]
+    assert select_rule(rules, "nav-lqr", "nav/lqr/state") == 0
+    assert select_rule(rules, "nav-lqr", "stats/nav-lqr") is None
+    assert select_rule(rules, "environment", "truth/chief") == 1
+    assert select_rule(rules, "environment", "clock") is None  # the time base
+    assert select_rule(rules, "ctrl-lqr", "cmd/lqr/att") is None

@@ -80,6 +80,60 @@ def test_short_mission_end_to_end(tmp_path: Path) -> None:
     assert "learning at t = 5460 s" in log
 
 
+DELAYED = """
+[run]
+name = "links"
+orbits = 1.0
+command_deadline = 20.0
+[[deputy]]
+name = "lqr"
+controller = "lqr"
+[[link]]                # navigation to controller: one flight-software period late
+publisher = "nav-*"
+subscriber = "ctrl-*"
+delay = 60.0
+[[link]]                # controller to environment: another period, and a lossy link
+publisher = "ctrl-*"
+subscriber = "environment"
+topic = "cmd/*/att"
+delay = 60.0
+loss = 0.3
+"""
+
+
+@pytest.mark.integration
+def test_link_delay_and_loss_from_the_deployment(tmp_path: Path) -> None:
+    """Delays shift the control loop by whole steps without a late command; each command the
+    link drops leaves the previous one in force, counted once as dropped and once as
+    missing."""
+    dep = tmp_path / "links.toml"
+    dep.write_text(DELAYED)
+    r = subprocess.run(
+        [sys.executable, "-m", "services.cli", "run", str(dep), "--output",
+         str(tmp_path / "runs"), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=110,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = Path(r.stdout.strip().splitlines()[-1])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] is True
+    env = summary["messages"]["services"]["environment"]
+    ctrl = summary["messages"]["services"]["ctrl-lqr"]
+    steps = env["steps"]
+    nav = summary["messages"]["services"]["nav-lqr"]
+    assert nav["published"] == steps * 6 + 1 and nav["unmatched"] == 0
+    # every navigation sample held by its link (the last ones still in flight at the end)
+    assert nav["published"] - 7 <= ctrl["delayed"] <= nav["published"]
+    assert ctrl["dropped"] == 0
+    assert 0.15 * steps < env["dropped"] < 0.45 * steps  # 30 % of about 90 commands
+    # a dropped command is missing at the step it was for (one for the last step is not)
+    assert env["dropped"] - 1 <= env["missing_commands"] <= env["dropped"]
+    assert env["late_commands"] == 0 and env["stale_commands"] == 0
+    assert summary["messages"]["totals"]["dropped"] == env["dropped"]
+
+
 def test_default_deployment_loads() -> None:
     dep = load_deployment(None)
     assert dep.services == [
@@ -127,6 +181,18 @@ def test_swarm_and_mismatch_deployments() -> None:
         (
             {"deputy": [{"name": "a", "learning": {"window_orbits": -1.0}}]},
             "deputy[0].learning.window_orbits: must be >= 0",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "link": [{"publisher": "nav-*", "dealy": 60.0}]},
+            "link[0].dealy: unknown key (did you mean 'delay'?)",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "link": [{"publisher": "nav-b", "delay": 60.0}]},
+            "link[0].publisher: 'nav-b' matches no service",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "link": [{"loss": 1.5}]},
+            "link[0].loss: expected a probability in [0, 1]",
         ),
     ],
 )
