@@ -20,29 +20,14 @@ import sys
 import tempfile
 import threading
 import time
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import psutil
-import tomli_w
 
-from services.deployment import load_deployment, resolve
+from services.deployment import load_deployment, read_table, write_deployment
 from services.inprocess import run_in_process
 from services.mission import duration
-
-
-def write_deployment(table: dict[str, Any], folder: Path, name: str) -> Path:
-    """Write a deployment table to ``folder/name.toml`` (its runs go under ``folder``)."""
-    table = copy.deepcopy(table)
-    table.setdefault("run", {})["output"] = str(folder / "runs")
-    path = folder / f"{name}.toml"
-    path.write_bytes(tomli_w.dumps(table).encode())
-    return path
-
-
-def read_table(name_or_path: str | None) -> dict[str, Any]:
-    return tomllib.loads(resolve(name_or_path).read_text())
 
 
 class _PeakRSS:

@@ -175,6 +175,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_monitor_arguments(p)
     p.set_defaults(func=cmd_monitor)
+    p = sub.add_parser(
+        "sweep", help="the mission over link delays or loss rates: a table and a plot"
+    )
+    from services.sweep import add_sweep_arguments, sweep_command
+
+    add_sweep_arguments(p)
+    p.set_defaults(func=sweep_command)
     return parser
 
 

@@ -8,6 +8,7 @@ Angles in the file are degrees; lengths metres; times seconds.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import math
 import tomllib
@@ -414,6 +415,24 @@ def resolve(name_or_path: str | None) -> Path:
     raise DeploymentError(
         f"{name_or_path}: no such deployment file or name{hint}; known: " + ", ".join(known)
     )
+
+
+def read_table(name_or_path: str | None) -> dict[str, Any]:
+    """A deployment file's raw TOML table (to derive another deployment from it)."""
+    return tomllib.loads(resolve(name_or_path).read_text())
+
+
+def write_deployment(table: dict[str, Any], folder: Path, name: str) -> Path:
+    """Write a deployment table to ``folder/name.toml``, its runs going under ``folder/runs``
+    (benchmarks and sweeps derive their deployments this way)."""
+    import tomli_w
+
+    table = copy.deepcopy(table)
+    table.setdefault("run", {})["output"] = str(folder / "runs")
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    path.write_bytes(tomli_w.dumps(table).encode())
+    return path
 
 
 def load_deployment(name_or_path: str | None) -> Deployment:

@@ -1,0 +1,67 @@
+"""ddvi sweep: the impaired deployments it derives, its table, and a short real sweep."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from services.deployment import deployment_from_table
+from services.sweep import impaired_table, largest_learning_value
+
+SHORT = """
+[run]
+name = "sw"
+orbits = 0.5
+command_deadline = 20.0
+[[deputy]]
+name = "lqr"
+controller = "lqr"
+"""
+
+
+def test_impaired_table_puts_both_links_first() -> None:
+    table = {"deputy": [{"name": "a"}], "link": [{"publisher": "environment", "delay": 5.0}]}
+    dep = deployment_from_table(impaired_table(table, "delay", 120.0))
+    assert [(k.publisher, k.subscriber, k.topic, k.delay) for k in dep.link] == [
+        ("nav-*", "ctrl-*", "nav/*/state", 120.0),
+        ("ctrl-*", "environment", "cmd/*/att", 120.0),
+        ("environment", "*", "*", 5.0),
+    ]
+    lossy = deployment_from_table(impaired_table(table, "loss", 0.25))
+    assert [k.loss for k in lossy.link[:2]] == [0.25, 0.25]
+    with pytest.raises(ValueError, match="sweep kind"):
+        impaired_table(table, "jitter", 1.0)
+
+
+def test_largest_learning_value_stops_at_the_first_failure() -> None:
+    def row(value: float, learned: bool) -> dict:
+        return {"value": value, "controller": "ddvi", "learned": learned, "completed": True}
+
+    rows = [row(0, True), row(60, True), row(120, False), row(180, True)]
+    assert largest_learning_value(rows) == 60
+    assert largest_learning_value([row(0, False)]) is None
+
+
+@pytest.mark.integration
+def test_delay_sweep_runs_each_value(tmp_path: Path) -> None:
+    dep = tmp_path / "short.toml"
+    dep.write_text(SHORT)
+    r = subprocess.run(
+        [sys.executable, "-m", "services.cli", "sweep", "delay", str(dep), "--values", "0",
+         "120", "--output", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=170,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    folder = Path(r.stdout.strip().splitlines()[-1])
+    rows = list(csv.DictReader((folder / "sweep.csv").read_text().splitlines()))
+    assert [(float(x["value"]), x["deputy"]) for x in rows] == [(0.0, "lqr"), (120.0, "lqr")]
+    assert all(x["completed"] == "True" and x["late"] == "0" for x in rows)
+    assert int(rows[0]["delayed"]) == 0 and int(rows[1]["delayed"]) > 0
+    assert (folder / "sweep.png").stat().st_size > 0
+    assert "| delay (s) |" in (folder / "sweep.md").read_text()
