@@ -172,7 +172,7 @@ class _Route:
     link: LinkModel | None
     observe: Handler | None = None
     index: int = 0  # the subscription's number on its bus (seeds its link models)
-    models: dict[int, LinkModel] = field(default_factory=dict)
+    models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     subscriber: Any = None
 
@@ -187,8 +187,8 @@ class Bus:
     ``close()`` undeclares what this Bus declared. Usable as a context manager.  ``links`` are
     the deployment's link rules at this subscriber (``Deployment.links_for``): each received
     message goes through the model of the first rule matching its publisher and topic, on
-    ``link_clock`` ("sim": the time given to ``pump``; "wall": ``time.monotonic()``), seeded
-    from ``seed``.
+    ``link_clock`` ("sim": the time given to ``pump``; "wall": ``time.monotonic()``), one model
+    per publisher, seeded from ``seed``.
     """
 
     def __init__(
@@ -245,10 +245,10 @@ class Bus:
         return out
 
     def latency(self, publisher: str, topic: str) -> float:
-        """The nominal delay (s) of the deployment link from ``publisher`` on ``topic`` to this
-        service; 0 when no link rule applies."""
+        """The largest delay (s: delay + jitter) of the deployment link from ``publisher`` on
+        ``topic`` to this service; 0 when no link rule applies."""
         i = select_rule(self._rules, publisher, topic)
-        return 0.0 if i is None else self._rules[i].spec.delay
+        return 0.0 if i is None else self._rules[i].spec.delay + self._rules[i].spec.jitter
 
     # -- publishing -------------------------------------------------------------------------
 
@@ -320,11 +320,13 @@ class Bus:
         i = self._rule_cache[key]
         if i is None:
             return None
-        model = route.models.get(i)
+        model = route.models.get((i, publisher))
         if model is None:
-            # one seeded stream per (subscriber, rule, route): deterministic for a given seed
-            seed = zlib.crc32(f"{self._seed}/{self.service}/{i}/{route.index}".encode())
-            model = route.models[i] = LinkModel(self._rules[i].spec, seed, self._link_clock)
+            # one seeded stream per (subscriber, route, rule, publisher): what one publisher's
+            # messages suffer does not depend on how they interleave with another's
+            seed = zlib.crc32(f"{self._seed}/{self.service}/{route.index}/{i}/{publisher}".encode())
+            model = LinkModel(self._rules[i].spec, seed, self._link_clock)
+            route.models[(i, publisher)] = model
         return model
 
     def _on_sample(self, route: _Route, sample: zenoh.Sample) -> None:
@@ -359,7 +361,9 @@ class Bus:
                         sent=message.t if model.clock == "sim" else None,
                     )
                 )
-            self._deliver(route, items)
+                # delivered under the lock (handlers only queue), so that what one thread's
+                # offer releases is queued before another thread's pump returns
+                self._deliver(route, items)
             if route.observe is not None:
                 route.observe(topic, message)
         except Exception:
@@ -394,8 +398,8 @@ class Bus:
                 items = [
                     item for model in route.all_models() for item in model.release(self._now(model))
                 ]
-            if items:
-                delivered += self._deliver(route, items)
+                if items:
+                    delivered += self._deliver(route, items)
         return delivered
 
     @property

@@ -24,6 +24,8 @@ sample measured at its own time: with no delay this is exactly ``Controller.on_s
 
 from __future__ import annotations
 
+import bisect
+import collections
 import math
 import queue
 import sys
@@ -94,6 +96,7 @@ class Controller:
         self.scale_height = dep.atmosphere.scale_height
         self.u = 0.0  # the attitude command in force, sigma3
         self.u_applied = 0.0  # the linear-model input it realises (drag_allocation)
+        self.steps: list[tuple[float, float]] = []  # (T, u_applied) of every step so far
         self.iteration = 0
         self.converged = self.mode == "lqr"
         self.learn_info: dict = {}
@@ -118,6 +121,7 @@ class Controller:
         ratio = self.density_ratio(altitude)
         self.u, u_area = drag_allocation(u / ratio, self.normal_angle, self.limit)
         self.u_applied = u_area * ratio
+        self.steps.append((t, self.u_applied))
         return self.u
 
     def on_sample(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> SampleOutcome:
@@ -140,6 +144,12 @@ class Controller:
         self.command(t, x, v, altitude)
         return learn_log
 
+    def input_at(self, t: float) -> float:
+        """The linear-model input this controller had in force at time t: that of its newest
+        step at or before t (a delayed sample is collected after later steps have run)."""
+        k = bisect.bisect_right(self.steps, t + 1e-6, key=lambda step: step[0])
+        return self.steps[k - 1][1] if k else 0.0
+
     def collect(self, t: float, x: np.ndarray, v: np.ndarray) -> str | None:
         """While exploring, feed the collector the sample with the input in force (what this
         controller commanded; a link delay it does not know of shifts the plant's); returns
@@ -147,7 +157,7 @@ class Controller:
         if self.phase != "exploring":
             return None
         try:
-            self.collector.add(t, x, [self.u_applied], v)
+            self.collector.add(t, x, [self.input_at(t)], v)
         except LearningError as exc:
             return f"sample at t = {t} rejected: {exc}"
         return None
@@ -225,6 +235,8 @@ def main(ctx: ServiceContext) -> int:
     navs: dict[float, tuple[np.ndarray, float]] = {}  # in-plane state, altitude
     ready: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}  # paired, not yet collected
     last: tuple[float, np.ndarray, np.ndarray, float] | None = None  # newest collected sample
+    # collected samples a step may still fly on (up to its delay behind it)
+    recent: collections.deque = collections.deque(maxlen=math.ceil(delay / nav_period) + 8)
     counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0}
     clock = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}  # time reached, seen up to
     steps = 0
@@ -279,8 +291,12 @@ def main(ctx: ServiceContext) -> int:
 
     def tick(T: float) -> None:
         nonlocal steps
-        on_time = [t for t in ready if t <= T + 1e-6]
-        newest = (max(on_time), *ready[max(on_time)]) if on_time else last
+        # the newest sample measured by T - delay: a sample a later clock's pump released
+        # early (the environment runs ahead of a delayed loop) must not shorten the delay
+        limit = expected_sample(T) + 1e-6
+        candidates = [(t, *ready[t]) for t in ready if t <= limit]
+        candidates += [s for s in recent if s[0] <= limit]
+        newest = max(candidates, key=lambda s: s[0]) if candidates else None
         if newest is None:  # nothing measured yet (a delayed start): hold the zero command
             learn_log = None
         else:
@@ -309,6 +325,7 @@ def main(ctx: ServiceContext) -> int:
             counters["samples_rejected"] += 1
             ctx.log("warning", rejected, t)
         last = (t, x, v, altitude)
+        recent.append(last)
 
     def advance() -> None:
         """Collect samples and run flight-software steps in time order (a step before the
@@ -361,9 +378,13 @@ def main(ctx: ServiceContext) -> int:
                     counters["samples_rejected"] += 1  # stale or replayed
                 else:
                     ready[t] = (x, v, altitude)
-            # forget exostates that no navigation sample will claim
+            # forget exostates and samples that nothing will pair any more (their partner was
+            # lost on a link, or they are duplicates of collected ones)
             for t in [t for t in exo if last is not None and t < last[0]]:
                 del exo[t]
+            for t in [t for t in navs if last is not None and t < last[0]]:
+                del navs[t]
+                counters["samples_rejected"] += 1
         if inbox.empty():  # what pump() just released is queued: take it in first
             advance()
         if done():

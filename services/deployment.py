@@ -379,6 +379,17 @@ def _validate_links(dep: Deployment) -> None:
                 raise DeploymentError(
                     f"{w}.{key}: {pattern!r} matches no service; services: {', '.join(services)}"
                 )
+        navs = [s for s in services if s.startswith("nav-")]
+        if fnmatchcase("environment", link.publisher) and any(
+            fnmatchcase(s, link.subscriber) for s in navs
+        ):
+            # the truth is what a sensor measures, not a message a flight link carries; and
+            # a lock-step loop could not tell a lost truth from a late one
+            raise DeploymentError(
+                f"{w}: impairs the environment's truth to navigation "
+                f"({link.publisher!r} -> {link.subscriber!r}); impair navigation -> controller "
+                '(publisher = "nav-*") or the commands (topic = "cmd/*/att") instead'
+            )
         if link.subscriber == "monitor":
             raise DeploymentError(
                 f"{w}.subscriber: the monitor records what is published, unimpaired; impair "

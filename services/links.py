@@ -19,7 +19,7 @@ Semantics, per offered item (random draws in this fixed order):
        delivered right after it (counted ``reordered`` when the pair forms; until a successor
        arrives it stays held);
     4. each copy gets latency ``delay + U(0, jitter)``; a copy with positive latency is held
-       until ``now + latency`` (counted ``delayed``).
+       until ``sent + latency`` (``sent`` defaults to ``now``; counted ``delayed``).
 Items due at the same time come out in the order they were offered (swaps aside).
 
 ``clock`` says which time ``now`` is: ``"sim"``, simulation time as the receiver knows it

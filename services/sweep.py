@@ -10,17 +10,17 @@ with that delay (s; simulation time in lock-step mode) or that loss probability.
 
 Writes ``<output>/sweep-<kind>-<stamp>/``: ``sweep.csv`` (one row per run and deputy),
 ``sweep.md`` (the same table), ``sweep.png`` (final along-track error and learned-gain error
-against the value) and every run's own folder; prints the table, and the largest value at
-which every DDVI deputy still learned.
+against the value) and every run's own folder; prints the table, and the largest value up to
+which every DDVI deputy learned a gain within 10% of the LQR gain (``SUCCESS``).
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
 import datetime
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -62,8 +62,8 @@ def impaired_table(table: dict[str, Any], kind: str, value: float) -> dict[str, 
         {"publisher": "nav-*", "subscriber": "ctrl-*", "topic": "nav/*/state", key: value},
         {"publisher": "ctrl-*", "subscriber": "environment", "topic": "cmd/*/att", key: value},
     ]
-    out = dict(table)
-    out["link"] = rules + list(table.get("link", []))
+    out = copy.deepcopy(table)
+    out["link"] = rules + out.get("link", [])
     return out
 
 
@@ -94,13 +94,23 @@ def summary_rows(value: float, summary: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
+SUCCESS = 0.1
+"""Learning succeeded: the controller switched to learned gains within 10% of the LQR gain of
+the nominal model (|K - K*|/|K*| < SUCCESS); a learner can also converge to a wrong gain."""
+
+
+def succeeded(row: dict[str, Any]) -> bool:
+    err = row["gain_error_vs_lqr"]
+    return bool(row["learned"] and row["completed"] and err is not None and err < SUCCESS)
+
+
 def largest_learning_value(rows: list[dict[str, Any]]) -> float | None:
-    """The largest value at which every DDVI deputy learned, all smaller values included
-    (None if it failed at the first)."""
+    """The largest value at which learning succeeded for every DDVI deputy, all smaller values
+    included (None if it failed at the first)."""
     best = None
     for value in sorted({r["value"] for r in rows}):
         ddvi = [r for r in rows if r["value"] == value and r["controller"] == "ddvi"]
-        if not ddvi or not all(r["learned"] and r["completed"] for r in ddvi):
+        if not ddvi or not all(succeeded(r) for r in ddvi):
             break
         best = value
     return best
@@ -123,6 +133,14 @@ def markdown_table(kind: str, rows: list[dict[str, Any]]) -> str:
             "late", "missing"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
+    lines += [
+        "",
+        "learned: the controller switched to learned gains; |K-K*|/|K*| against the nominal "
+        "model's LQR gain. dropped, delayed: by this deputy's controller's links and the "
+        "environment's command links (all deputies); late, missing: the environment's "
+        "commands, all deputies (a learning attempt longer than run.command_deadline also "
+        "makes them).",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -237,9 +255,11 @@ def sweep_command(args: argparse.Namespace) -> int:
     if any(r["controller"] == "ddvi" for r in rows):
         unit = KINDS[args.kind]
         print(
-            f"DDVI learned at every {args.kind} up to {best:g} {unit}"
-            if best is not None and not math.isnan(best)
-            else f"DDVI did not learn at the smallest {args.kind}"
+            f"DDVI learned within {SUCCESS:.0%} of the LQR gain at every {args.kind} up to "
+            f"{best:g} {unit}"
+            if best is not None
+            else f"DDVI did not learn within {SUCCESS:.0%} of the LQR gain at the smallest "
+            f"{args.kind}"
         )
     print(folder)
     completed = all(r["completed"] for r in rows) and len(rows) >= len(args.values)

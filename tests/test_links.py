@@ -137,3 +137,12 @@ def test_rules_match_publisher_and_topic_but_never_the_clock() -> None:
     assert select_rule(rules, "environment", "truth/chief") == 1
     assert select_rule(rules, "environment", "clock") is None  # the time base
     assert select_rule(rules, "ctrl-lqr", "cmd/lqr/att") is None
+
+
+def test_jitter_counts_in_the_latency_a_loop_waits_for() -> None:
+    """A lock-step loop maps a link to the steps it waits for with delay + jitter, the most a
+    message can take; the link never takes longer."""
+    model = LinkModel(LinkSpec(delay=60.0, jitter=5.0), seed=3)
+    for k in range(50):
+        assert model.offer(k, now=60.0 * k + 59.99, sent=60.0 * k) == []  # not before delay
+        assert model.release(60.0 * k + 65.0) == [k]  # never after delay + jitter

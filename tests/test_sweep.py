@@ -24,12 +24,13 @@ controller = "lqr"
 
 
 def test_impaired_table_puts_both_links_first() -> None:
-    table = {"deputy": [{"name": "a"}], "link": [{"publisher": "environment", "delay": 5.0}]}
+    own = {"publisher": "environment", "subscriber": "ctrl-*", "topic": "exo/state", "delay": 5.0}
+    table = {"deputy": [{"name": "a"}], "link": [own]}
     dep = deployment_from_table(impaired_table(table, "delay", 120.0))
     assert [(k.publisher, k.subscriber, k.topic, k.delay) for k in dep.link] == [
         ("nav-*", "ctrl-*", "nav/*/state", 120.0),
         ("ctrl-*", "environment", "cmd/*/att", 120.0),
-        ("environment", "*", "*", 5.0),
+        ("environment", "ctrl-*", "exo/state", 5.0),
     ]
     lossy = deployment_from_table(impaired_table(table, "loss", 0.25))
     assert [k.loss for k in lossy.link[:2]] == [0.25, 0.25]
@@ -37,13 +38,24 @@ def test_impaired_table_puts_both_links_first() -> None:
         impaired_table(table, "jitter", 1.0)
 
 
+def test_each_impaired_table_is_its_own() -> None:
+    table = {"run": {"name": "r"}, "deputy": [{"name": "a"}]}
+    first, second = impaired_table(table, "delay", 10.0), impaired_table(table, "delay", 20.0)
+    first["run"]["name"] = "changed"
+    assert second["run"]["name"] == "r" and table["run"]["name"] == "r"
+    assert "link" not in table
+
+
 def test_largest_learning_value_stops_at_the_first_failure() -> None:
-    def row(value: float, learned: bool) -> dict:
-        return {"value": value, "controller": "ddvi", "learned": learned, "completed": True}
+    def row(value: float, learned: bool, error: float | None = 0.01) -> dict:
+        return {"value": value, "controller": "ddvi", "learned": learned, "completed": True,
+                "gain_error_vs_lqr": error if learned else None}  # fmt: skip
 
     rows = [row(0, True), row(60, True), row(120, False), row(180, True)]
     assert largest_learning_value(rows) == 60
     assert largest_learning_value([row(0, False)]) is None
+    # converged, but to a gain far from the optimum: not a success
+    assert largest_learning_value([row(0, True), row(60, True, error=1.2)]) == 0
 
 
 @pytest.mark.integration
