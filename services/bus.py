@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import queue
 import re
 import threading
@@ -39,7 +40,7 @@ from typing import Any
 
 import zenoh
 
-from services.links import CLOCKS, LinkModel, LinkRule, select_rule
+from services.links import CLOCKS, LinkModel, LinkRule, rule_latency, select_rule
 from services.schema import MAX_PAYLOAD, REASONS, Message, MessageError, decode, encode
 
 log = logging.getLogger("ddvi.bus")
@@ -53,6 +54,10 @@ MSGPACK_ENCODING = "application/msgpack"
 _ENDPOINT = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 _LINK_COUNTERS = ("dropped", "duplicated", "reordered", "delayed")
+REPLAY_WINDOW = 256
+"""Sequence numbers a subscriber remembers per (publisher, topic) to reject duplicates."""
+SEQUENCE_REASONS = ("duplicate", "stale")
+"""Why a well-formed message is refused by its sequence number (see ``SequenceGuard``)."""
 
 Handler = Callable[[str, Message], None]
 """A subscription handler: ``handler(topic, message)``, topic relative to ``ddvi/<run>/``."""
@@ -162,6 +167,37 @@ def _check_topic(topic: str) -> str:
     return topic
 
 
+class SequenceGuard:
+    """Anti-replay window of one subscriber for one (publisher, topic): like a CCSDS or IPsec
+    receiver, it accepts each sequence number once, in any order within ``window`` of the
+    highest seen.  ``check(seq, t)`` returns None (accept) or why not: ``"duplicate"`` (seen
+    already: a replay, or a copy the link duplicated), ``"stale"`` (older than the window, from
+    a time not newer than the newest accepted: a replay of old traffic).  A publisher that
+    restarts counts from 0 again with its time moving on: a far older seq with a newer t
+    restarts the window."""
+
+    def __init__(self, window: int = REPLAY_WINDOW) -> None:
+        self.window = window
+        self.highest = -1
+        self.newest_t = -math.inf
+        self.seen: set[int] = set()
+
+    def check(self, seq: int, t: float) -> str | None:
+        if seq <= self.highest - self.window:
+            if t <= self.newest_t:
+                return "stale"
+            self.highest, self.seen = -1, set()  # the publisher restarted
+        if seq in self.seen:
+            return "duplicate"
+        self.seen.add(seq)
+        self.newest_t = max(self.newest_t, t)
+        if seq > self.highest:
+            self.highest = seq
+            if len(self.seen) > 2 * self.window:
+                self.seen = {s for s in self.seen if s > seq - self.window}
+        return None
+
+
 @dataclass
 class _Route:
     """One subscription: its handler, schema filter, its link models (an explicit one for every
@@ -173,6 +209,7 @@ class _Route:
     observe: Handler | None = None
     index: int = 0  # the subscription's number on its bus (seeds its link models)
     models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
+    guards: dict[tuple[str, str], SequenceGuard] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     subscriber: Any = None
 
@@ -218,6 +255,7 @@ class Bus:
             ["sent", "received", "delivered", "rejected", "handler_errors"], 0
         )
         self._counts.update({f"rejected.{r}": 0 for r in sorted(REASONS)})
+        self._counts.update({f"rejected.{r}": 0 for r in SEQUENCE_REASONS})
         self._rules = list(links)
         self._link_clock, self._seed = link_clock, seed
         self._rule_cache: dict[tuple[str, str], int | None] = {}
@@ -247,8 +285,7 @@ class Bus:
     def latency(self, publisher: str, topic: str) -> float:
         """The largest delay (s: delay + jitter) of the deployment link from ``publisher`` on
         ``topic`` to this service; 0 when no link rule applies."""
-        i = select_rule(self._rules, publisher, topic)
-        return 0.0 if i is None else self._rules[i].spec.delay + self._rules[i].spec.jitter
+        return rule_latency(self._rules, publisher, topic)
 
     # -- publishing -------------------------------------------------------------------------
 
@@ -340,14 +377,7 @@ class Bus:
                     raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
                 message = decode(sample.payload.to_bytes(), route.expected)
             except MessageError as err:
-                with self._count_lock:
-                    self._counts["rejected"] += 1
-                    self._counts[f"rejected.{err.reason}"] += 1
-                    n = self._counts[f"rejected.{err.reason}"]
-                if n <= 10 or n % 1000 == 0:
-                    log.warning(
-                        "%s: rejected %s (%s, #%d): %s", self.service, key, err.reason, n, err
-                    )
+                self._reject(key, err.reason, str(err))
                 return
             self._count("received")
             with route.lock:
@@ -370,9 +400,32 @@ class Bus:
             self._count("handler_errors")
             log.exception("%s: error in bus callback", self.service)
 
+    def _reject(self, key: str, reason: str, text: str) -> None:
+        """Count a refused message by reason; log the first ten of each and every 1000th."""
+        with self._count_lock:
+            self._counts["rejected"] += 1
+            self._counts[f"rejected.{reason}"] += 1
+            n = self._counts[f"rejected.{reason}"]
+        if n <= 10 or n % 1000 == 0:
+            log.warning("%s: rejected %s (%s, #%d): %s", self.service, key, reason, n, text)
+
     def _deliver(self, route: _Route, items: Iterable[tuple[str, Message]]) -> int:
+        """Hand what a link lets through to the handler (caller holds route.lock), each
+        (publisher, topic, seq) once: duplicates and replays are refused here, after the link,
+        as a receiver behind a real network would."""
         delivered = 0
         for topic, message in items:
+            guard = route.guards.get((message.src, topic))
+            if guard is None:
+                guard = route.guards[(message.src, topic)] = SequenceGuard()
+            if (why := guard.check(message.seq, message.t)) is not None:
+                self._reject(
+                    self.prefix + topic,
+                    why,
+                    f"seq {message.seq} from {message.src} at t = {message.t} "
+                    + ("seen already" if why == "duplicate" else "older than its window"),
+                )
+                continue
             try:
                 route.handler(topic, message)
                 delivered += 1

@@ -91,6 +91,9 @@ class Controller:
             )
             self.learn_at = lrn.learn_at_orbits * orbit_period(dep)
             self.next_attempt = self.learn_at
+        # a command issued at T acts from the environment's first step at or after T + this
+        # (DESIGN.md section 3): the flight software knows its actuation link's latency
+        self.actuation_delay = dep.link_latency(f"ctrl-{sc}", "environment", f"cmd/{sc}/att")
         self.normal_angle = math.radians(dep.spacecraft.normal_angle)
         self.h_model = dep.chief.a - R_EARTH
         self.scale_height = dep.atmosphere.scale_height
@@ -150,14 +153,23 @@ class Controller:
         k = bisect.bisect_right(self.steps, t + 1e-6, key=lambda step: step[0])
         return self.steps[k - 1][1] if k else 0.0
 
+    def input_acting(self, t: float) -> float:
+        """The linear-model input acting on the plant from t to the next sample: the
+        environment takes commands at each flight-software boundary T_k, the newest issued by
+        T_k - actuation delay (none yet: the zero command).  With no delay, ``input_at(t)``.
+        Exact for a fixed delay; with jitter the environment may apply a command a step sooner
+        than this assumes, and a command lost on its link leaves the previous one acting."""
+        t_k = math.floor(t / self.fsw + 1e-9) * self.fsw
+        issued = math.floor((t_k - self.actuation_delay) / self.fsw + 1e-9) * self.fsw
+        return self.input_at(issued) if issued > -1e-6 else 0.0
+
     def collect(self, t: float, x: np.ndarray, v: np.ndarray) -> str | None:
-        """While exploring, feed the collector the sample with the input in force (what this
-        controller commanded; a link delay it does not know of shifts the plant's); returns
-        why the collector refused it, if it did."""
+        """While exploring, feed the collector the sample with the input acting on the plant
+        from t on (``input_acting``); returns why the collector refused it, if it did."""
         if self.phase != "exploring":
             return None
         try:
-            self.collector.add(t, x, [self.input_at(t)], v)
+            self.collector.add(t, x, [self.input_acting(t)], v)
         except LearningError as exc:
             return f"sample at t = {t} rejected: {exc}"
         return None

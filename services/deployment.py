@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ddvi_core.relnav import FRAMES
-from services.links import LinkRule, LinkSpec
+from services.links import LinkRule, LinkSpec, rule_latency
 
 __all__ = [
     "Atmosphere",
@@ -192,6 +192,11 @@ class Deployment:
             for k in self.link
             if fnmatchcase(subscriber, k.subscriber)
         ]
+
+    def link_latency(self, publisher: str, subscriber: str, topic: str) -> float:
+        """The largest latency (s: delay + jitter) of the link from one service to another on
+        ``topic``; 0 when no [[link]] applies."""
+        return rule_latency(self.links_for(subscriber), publisher, topic)
 
     def deputy_named(self, name: str) -> Deputy:
         for d in self.deputy:

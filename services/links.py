@@ -6,6 +6,7 @@ Fully deterministic for a given seed and sequence of calls.
 Inputs/outputs:
     LinkSpec(delay, jitter, loss, duplicate, reorder)   validated parameters
     LinkRule(publisher, topic, spec)  which messages a spec applies to (a deployment's [[link]])
+    select_rule, rule_latency          the rule that applies to a message, and its latency
     LinkModel(spec, seed, clock)
         offer(item, now) -> list     admit one item, return everything deliverable at ``now``
         release(now) -> list         return held items due at ``now``, in due order
@@ -97,6 +98,13 @@ def select_rule(rules: Sequence[LinkRule], publisher: str, topic: str) -> int | 
         if rule.matches(publisher, topic):
             return i
     return None
+
+
+def rule_latency(rules: Sequence[LinkRule], publisher: str, topic: str) -> float:
+    """The largest latency (s: delay + jitter) the first matching rule gives a message from
+    ``publisher`` on ``topic``; 0 when no rule matches."""
+    i = select_rule(rules, publisher, topic)
+    return 0.0 if i is None else rules[i].spec.delay + rules[i].spec.jitter
 
 
 class LinkModel:

@@ -128,15 +128,16 @@ def _fmt(x: Any) -> str:
 
 def markdown_table(kind: str, rows: list[dict[str, Any]]) -> str:
     unit = KINDS[kind]
-    head = [f"{kind} ({unit})", "deputy", "controller", "completed", "final |y-y_ref| (m)",
-            "last-orbit max (m)", "learned", "at orbit", "|K-K*|/|K*|", "dropped", "delayed",
+    head = [f"{kind} ({unit})", "deputy", "controller", "completed", "final along-track error (m)",
+            "last-orbit max (m)", "learned", "at orbit", "gain error", "dropped", "delayed",
             "late", "missing"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
     lines += [
         "",
-        "learned: the controller switched to learned gains; |K-K*|/|K*| against the nominal "
-        "model's LQR gain. dropped, delayed: by this deputy's controller's links and the "
+        "learned: the controller switched to learned gains; gain error: |K - K*| / |K*| "
+        "against the nominal model's LQR gain K*; along-track error: |y - y_ref|. dropped, "
+        "delayed: by this deputy's controller's links and the "
         "environment's command links (all deputies); late, missing: the environment's "
         "commands, all deputies (a learning attempt longer than run.command_deadline also "
         "makes them).",

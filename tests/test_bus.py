@@ -18,6 +18,7 @@ from services.bus import (
     EPHEMERAL_LOOPBACK,
     Bus,
     BusSettings,
+    SequenceGuard,
     open_session,
     queue_handler,
     wait_for_alive,
@@ -265,3 +266,52 @@ def test_publish_validates_and_closed_bus_refuses(
     with pytest.raises(RuntimeError, match="closed"):
         tx.publish("nav/deputy1/state", "nav", nav_body(), t=0.0)
     assert tx.counters["sent"] == 1
+
+
+def test_sequence_guard_accepts_each_seq_once_in_any_order() -> None:
+    guard = SequenceGuard(window=4)
+    assert [guard.check(s, float(s)) for s in (0, 2, 1, 3)] == [None] * 4  # reordered: fine
+    assert guard.check(2, 2.0) == "duplicate"
+    assert guard.check(10, 10.0) is None
+    assert guard.check(1, 1.0) == "stale"  # behind the window, from the past: a replay
+    assert guard.check(7, 7.0) is None  # inside the window, not seen yet
+    assert guard.check(0, 11.0) is None  # far older seq, newer time: the publisher restarted
+    assert guard.check(0, 11.0) == "duplicate"
+
+
+def test_replays_and_link_duplicates_are_refused_once_counted(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """A recorded message put again (a replay, recent or old) and the copies a duplicating
+    link makes reach no handler; each is counted by reason, and every original arrives."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    dups: Inbox = queue.Queue()
+    probe: Inbox = queue.Queue()
+    key = f"ddvi/{run}/nav/deputy1/state"
+    rules = [LinkRule("nav-*", "nav/deputy2/state", LinkSpec(duplicate=1.0))]
+    with Bus(hub, run, "controller", links=rules) as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("probe", queue_handler(probe))
+        rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav")
+        rx.subscribe("nav/deputy2/state", queue_handler(dups), "nav")
+        connect(tx, probe, "probe")
+        first = encode("nav", nav_body(1.0), seq=0, t=10.0, src="nav-deputy1")
+        for payload in (first, first):  # the second is a replay
+            svc.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        assert inbox.get(timeout=TIMEOUT)[1].seq == 0
+        assert wait_until(lambda: rx.counters["rejected.duplicate"] == 1)
+        tx._seq["nav/deputy1/state"] = 1
+        for seq in range(1, 300):
+            tx.publish("nav/deputy1/state", "nav", nav_body(3.0), t=10.0 + seq)
+        assert [inbox.get(timeout=TIMEOUT)[1].seq for _ in range(299)] == list(range(1, 300))
+        old = encode("nav", nav_body(2.0), seq=5, t=15.0, src="nav-deputy1")
+        svc.put(key, old, congestion_control=zenoh.CongestionControl.BLOCK)
+        assert wait_until(lambda: rx.counters["rejected.stale"] == 1)
+        for _ in range(5):  # at t = 0: due at once, each with its copy
+            tx.publish("nav/deputy2/state", "nav", nav_body(4.0), t=0.0)
+        assert [dups.get(timeout=TIMEOUT)[1].seq for _ in range(5)] == list(range(5))
+        assert wait_until(lambda: rx.counters["rejected.duplicate"] == 1 + 5)
+        c = rx.counters
+        assert c["duplicated"] == 5
+        assert c["rejected"] == 1 + 5 + 1
+        assert inbox.empty() and dups.empty()
