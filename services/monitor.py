@@ -16,6 +16,11 @@ undecodable payloads are recorded too) and to the run's liveliness tokens, and w
                        "payload_b64", "truncated"}; publish_time = the latest simulation time
     alive/<service>    liveliness changes {"service", "alive"} (a service came up or went away)
 
+A message whose (publisher, topic, seq) was seen already, or is older than the receiver's
+sequence window (``services.bus.SequenceGuard``), is recorded but kept out of the report and
+counted (``ignored.duplicate``, ``ignored.stale``); a payload whose schema is not the one its
+topic carries (``services.schema.TOPIC_SCHEMAS``) is rejected ``wrong_schema``.
+
 The file is flushed (chunk closed and written to the OS) every ``FLUSH_PERIOD`` s, so a kill -9
 of the monitor loses at most that much; ``read_recording`` reads such a footer-less file too.
 On a normal stop and on SIGTERM the writer is closed (summary and footer written).
@@ -62,7 +67,14 @@ import zenoh
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
-from services.bus import DEFAULT_HUB, EPHEMERAL_LOOPBACK, BusSettings, open_session
+from services.bus import (
+    DEFAULT_HUB,
+    EPHEMERAL_LOOPBACK,
+    SEQUENCE_REASONS,
+    BusSettings,
+    SequenceGuard,
+    open_session,
+)
 from services.report import RunData, ns, write_report
 from services.schema import (
     REASONS,
@@ -78,6 +90,7 @@ from services.schema import (
     Schema,
     Str,
     decode,
+    schema_for_topic,
 )
 from services.service import ServiceContext, run_service
 
@@ -420,6 +433,10 @@ class Monitor:
             ("received", "recorded", "rejected", "handler_errors"), 0
         )
         self.counters.update({f"rejected.{r}": 0 for r in sorted(REASONS)})
+        # recorded, but kept out of the report: a replayed stats or gains message must not
+        # overwrite newer figures
+        self.counters.update({f"ignored.{r}": 0 for r in SEQUENCE_REASONS})
+        self.guards: dict[tuple[str, str], SequenceGuard] = {}
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
         self.others = [s for s in ctx.deployment.services if s != ctx.name]
@@ -455,7 +472,7 @@ class Monitor:
         self.counters["received"] += 1
         self.data.seen(recv_ns)
         try:
-            msg = decode(value)
+            msg = decode(value, schema_for_topic(topic))  # a truth on a cmd topic is garbage
         except MessageError as err:
             self.counters["rejected"] += 1
             self.counters[f"rejected.{err.reason}"] += 1
@@ -464,7 +481,14 @@ class Monitor:
                 log.warning("rejected %s (%s, #%d): %s", key, err.reason, n, err)
             rec.rejected(topic, key, value, err, recv_ns, self.data.sim_t)
         else:
-            rec.message(topic, msg, recv_ns)
+            rec.message(topic, msg, recv_ns)  # everything received is recorded
+            guard = self.guards.setdefault((msg.src, topic), SequenceGuard())
+            if (why := guard.check(msg.seq, msg.t)) is not None:
+                n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
+                if n <= 10 or n % 1000 == 0:
+                    log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)
+                self.counters["recorded"] = rec.messages
+                return
             try:
                 self.data.ingest(topic, msg)
             except Exception:  # one odd message must not take the recording down

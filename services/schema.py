@@ -12,6 +12,7 @@ with a plain msgpack library.
 Inputs/outputs:
     encode(schema, body, *, seq, t, src) -> bytes    validates, then packs
     decode(payload, expected=None) -> Message        unpacks (bounded), then validates
+    schema_for_topic(topic) -> str | None            the schema a topic carries
     Both raise MessageError, whose ``reason`` is one of REASONS.
 
 The schema table ``SCHEMAS`` is data: one ``Schema`` per message type, each a mapping of field
@@ -328,6 +329,39 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
     Schema("log", 1, {"service": Str(), "level": Str(), "text": Str()}),
 )
 """Every message type of the system, by name."""
+
+TOPIC_SCHEMAS: tuple[tuple[str, str], ...] = (
+    ("clock", "clock"),
+    ("exo/state", "exo"),
+    ("truth/*", "truth"),
+    ("nav/*/state", "nav"),
+    ("cmd/*/att", "cmd"),
+    ("ctrl/*/gains", "gains"),
+    ("ctrl/*/status", "status"),
+    ("fault/**", "fault"),
+    ("stats/*", "stats"),
+    ("log/*", "log"),
+)
+"""Which schema each topic (below ``ddvi/<run>/``) carries (DESIGN.md section 2): ``*`` is one
+key chunk, ``**`` the rest of the key."""
+
+
+def schema_for_topic(topic: str) -> str | None:
+    """The schema a topic carries (``TOPIC_SCHEMAS``), None for a topic outside the table."""
+    chunks = topic.split("/")
+    for pattern, schema in TOPIC_SCHEMAS:
+        want = pattern.split("/")
+        if want[-1] == "**":  # the rest of the key, at least one chunk
+            want, chunks_ = want[:-1], chunks[: len(want) - 1]
+            if len(chunks) < len(want) + 1:
+                continue
+        else:
+            chunks_ = chunks
+        if len(want) == len(chunks_) and all(
+            w in ("*", c) for w, c in zip(want, chunks_, strict=True)
+        ):
+            return schema
+    return None
 
 
 # ---------------------------------------------------------------------------------------------

@@ -20,6 +20,8 @@ from services.deployment import (
     load_deployment,
     read_table,
 )
+from services.monitor import read_recording
+from services.schema import schema_for_topic
 
 SHORT = """
 [run]
@@ -70,7 +72,12 @@ def test_short_mission_end_to_end(tmp_path: Path) -> None:
     # 1.5 orbits of 10 s samples: truth for 3 craft, exo and clock at each, all recorded
     samples = int(1.5 * 5431.18 / 60) * 6 + 1
     assert summary["messages"]["recorded"] >= 5 * samples
-    assert (out / "recording.mcap").stat().st_size > 0
+    recorded, complete = read_recording(out / "recording.mcap")
+    assert complete and len(recorded) == summary["messages"]["recorded"]
+    # every topic the services use carries the schema the topic table says it does
+    data = [r for r in recorded if not r.topic.startswith(("alive/", "rejected/"))]
+    assert {r.schema for r in data} >= {"ddvi.truth", "ddvi.nav", "ddvi.cmd", "ddvi.gains"}
+    assert all(r.schema == f"ddvi.{schema_for_topic(r.topic)}" for r in data)
     for name in (
         "hill_x.png",
         "hill_y.png",
