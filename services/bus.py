@@ -36,6 +36,7 @@ import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from fnmatch import fnmatchcase
 from typing import Any
 
 import zenoh
@@ -171,10 +172,10 @@ class SequenceGuard:
     """Anti-replay window of one subscriber for one (publisher, topic): like a CCSDS or IPsec
     receiver, it accepts each sequence number once, in any order within ``window`` of the
     highest seen.  ``check(seq, t)`` returns None (accept) or why not: ``"duplicate"`` (seen
-    already: a replay, or a copy the link duplicated), ``"stale"`` (older than the window, from
-    a time not newer than the newest accepted: a replay of old traffic).  A publisher that
-    restarts counts from 0 again with its time moving on: a far older seq with a newer t
-    restarts the window."""
+    already: a replay, or a copy the link duplicated), ``"stale"`` (older than the window: a
+    replay of old traffic).  A publisher's time never goes back as its seq goes up, so a seq
+    at or below the highest with a time after the newest is a restarted publisher counting
+    from 0 again: the window starts over."""
 
     def __init__(self, window: int = REPLAY_WINDOW) -> None:
         self.window = window
@@ -183,10 +184,10 @@ class SequenceGuard:
         self.seen: set[int] = set()
 
     def check(self, seq: int, t: float) -> str | None:
-        if seq <= self.highest - self.window:
-            if t <= self.newest_t:
-                return "stale"
+        if seq <= self.highest and t > self.newest_t:
             self.highest, self.seen = -1, set()  # the publisher restarted
+        elif seq <= self.highest - self.window:
+            return "stale"
         if seq in self.seen:
             return "duplicate"
         self.seen.add(seq)
@@ -492,6 +493,26 @@ class Bus:
         self.close()
 
 
+def watch_alive(
+    session: zenoh.Session, run: str, pattern: str, on_change: Callable[[str, bool], None]
+) -> Any:
+    """Call ``on_change(service, alive)`` for every service matching ``pattern`` (a shell-style
+    glob, ``ctrl-*``) whose liveliness token is there now or comes and goes later.  Returns the
+    zenoh subscriber: undeclare it when done.  ``on_change`` runs on a zenoh thread and must
+    not raise."""
+    prefix = f"ddvi/{check_name('run', run)}/alive/"
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        try:
+            name = str(sample.key_expr)[len(prefix) :]
+            if fnmatchcase(name, pattern):  # zenoh's own '*' is a whole chunk only
+                on_change(name, sample.kind == zenoh.SampleKind.PUT)
+        except Exception:
+            log.exception("liveliness callback failed")
+
+    return session.liveliness().declare_subscriber(prefix + "*", on_sample, history=True)
+
+
 def wait_for_alive(
     session: zenoh.Session, run: str, services: Iterable[str], timeout: float
 ) -> set[str]:
@@ -500,20 +521,18 @@ def wait_for_alive(
     Returns the subset of ``services`` alive at return time.
     """
     wanted = set(services)
-    prefix = f"ddvi/{check_name('run', run)}/alive/"
     alive: set[str] = set()
     changed = threading.Condition()
 
-    def on_sample(sample: zenoh.Sample) -> None:
-        name = str(sample.key_expr)[len(prefix) :]
+    def on_change(name: str, up: bool) -> None:
         with changed:
-            if sample.kind == zenoh.SampleKind.PUT:
+            if up:
                 alive.add(name)
             else:
                 alive.discard(name)
             changed.notify_all()
 
-    subscriber = session.liveliness().declare_subscriber(prefix + "*", on_sample, history=True)
+    subscriber = watch_alive(session, run, "*", on_change)
     try:
         with changed:
             changed.wait_for(lambda: wanted <= alive, timeout)

@@ -182,6 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_sweep_arguments(p)
     p.set_defaults(func=sweep_command)
+    p = sub.add_parser("fault", help="inject a fault into a running deployment")
+    from services.faults import add_fault_arguments, fault_command
+
+    add_fault_arguments(p)
+    p.set_defaults(func=fault_command)
     return parser
 
 

@@ -20,6 +20,10 @@ newest navigation sample it has; with a link delay d on its inputs (the deployme
 that is the sample measured at T - d, and the step waits until that sample is accounted for
 (delivered, or lost by its link).  Samples and steps are taken in time order, a step before the
 sample measured at its own time: with no delay this is exactly ``Controller.on_sample``.
+While its navigation service is away (liveliness token gone, until its next sample) a step
+flies on the newest sample there is.  Restarted into a running mission (``--join``) it flies
+from the first step it has a sample for; a learner starts over (``Controller.rejoin``) and says
+so in its log.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.models import drag_allocation
 from ddvi_core.simulate import Exploration
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
-from services.bus import queue_handler
+from services.bus import queue_handler, watch_alive
 from services.deployment import Deployment
 from services.mission import (
     IN_PLANE,
@@ -104,6 +108,23 @@ class Controller:
         self.converged = self.mode == "lqr"
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
+        self.collect_from = 0.0  # samples before this are not the learner's (see rejoin)
+
+    def rejoin(self, t: float) -> str:
+        """Restarted into a running mission, flying from step t on: nothing of the previous
+        process survives, so a learner starts over (exploring with K0, its data from when its
+        own commands act, learning ``learn_at_orbits`` from now).  Returns the log line."""
+        if self.mode == "lqr":
+            return f"restarted: flying the LQR gains from t = {t:.0f} s"
+        self.collect_from = math.ceil((t + self.actuation_delay) / self.fsw - 1e-9) * self.fsw
+        self.learn_at = self.next_attempt = t + self.deputy.learning.learn_at_orbits * orbit_period(
+            self.dep
+        )
+        return (
+            f"restarted: learning starts over (the data and gains of the previous process are "
+            f"lost); exploring from t = {t:.0f} s, data from t = {self.collect_from:.0f} s, "
+            f"learning at t = {self.learn_at:.0f} s"
+        )
 
     def density_ratio(self, altitude: float) -> float:
         """rho(h) / rho(h_0) of the nominal exponential atmosphere: how much more drag the
@@ -166,7 +187,7 @@ class Controller:
     def collect(self, t: float, x: np.ndarray, v: np.ndarray) -> str | None:
         """While exploring, feed the collector the sample with the input acting on the plant
         from t on (``input_acting``); returns why the collector refused it, if it did."""
-        if self.phase != "exploring":
+        if self.phase != "exploring" or t < self.collect_from - 1e-6:
             return None
         try:
             self.collector.add(t, x, [self.input_acting(t)], v)
@@ -222,13 +243,12 @@ class Controller:
 
 
 _SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
+_PRESENCE = "presence"  # inbox tag: the navigation service came or went
 
 
 def main(ctx: ServiceContext) -> int:
     sc = ctx.name.removeprefix("ctrl-")
     ctrl = Controller(ctx.deployment, sc)
-    run = ctx.deployment.run
-    fsw, nav_period = run.fsw_period, ctrl.deputy.navigation.period
     inbox: queue.Queue = queue.Queue()
 
     def seen(_topic: str, msg: Message) -> None:
@@ -237,6 +257,19 @@ def main(ctx: ServiceContext) -> int:
     ctx.bus.subscribe(f"nav/{sc}/state", queue_handler(inbox), expected_schema="nav", observe=seen)
     ctx.bus.subscribe("exo/state", queue_handler(inbox), expected_schema="exo", observe=seen)
     ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
+    presence = watch_alive(
+        ctx.bus.session, ctx.run, f"nav-{sc}", lambda _name, up: inbox.put((_PRESENCE, up))
+    )
+    try:
+        return _serve(ctx, ctrl, inbox)
+    finally:
+        presence.undeclare()
+
+
+def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
+    sc = ctrl.sc
+    run = ctx.deployment.run
+    fsw, nav_period = run.fsw_period, ctrl.deputy.navigation.period
     ctx.ready()
     # A sample measured at t reaches this controller at t + delay (its links' nominal delay):
     # the flight-software step at T flies on the newest sample measured by T - delay.
@@ -252,7 +285,11 @@ def main(ctx: ServiceContext) -> int:
     counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0}
     clock = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}  # time reached, seen up to
     steps = 0
-    next_tick = 0.0
+    # a restarted controller flies from the first step it has a sample for (set below)
+    next_tick = math.inf if ctx.joining else 0.0
+    # while navigation is away (its token gone, until its next sample), steps fly on the
+    # newest sample there is instead of waiting for one that will not come
+    nav_present = True
     final_t: float | None = None
     final_seen = 0.0
 
@@ -296,9 +333,12 @@ def main(ctx: ServiceContext) -> int:
     def tick_ready(T: float) -> bool:
         """The clock has reached T and the sample the step flies on is accounted for
         (delivered, or held or lost by its link)."""
+        if math.isinf(T):  # restarted, no sample yet: no step to fly
+            return False
         want = expected_sample(T)
         return clock["now"] >= T - 1e-6 and (
-            want < -1e-6 or (clock["nav"] >= want - 1e-6 and clock["exo"] >= want - 1e-6)
+            want < -1e-6
+            or ((clock["nav"] >= want - 1e-6 or not nav_present) and clock["exo"] >= want - 1e-6)
         )
 
     def tick(T: float) -> None:
@@ -363,7 +403,8 @@ def main(ctx: ServiceContext) -> int:
             return False
         return last is not None and last[0] >= expected_sample(final_t) - 1e-6
 
-    publish_gains(0.0)
+    if not ctx.joining:
+        publish_gains(0.0)
     while not ctx.stop.is_set():
         try:
             kind, msg = inbox.get(timeout=0.5)
@@ -371,9 +412,12 @@ def main(ctx: ServiceContext) -> int:
             if final_t is not None and time.monotonic() - final_seen > END_GRACE:
                 break  # the last samples were lost on their links
             continue
-        if kind == _SEEN:
+        if kind == _PRESENCE:
+            nav_present = nav_present and msg  # back: once it publishes again
+        elif kind == _SEEN:
             key = "nav" if msg.schema == "nav" else "exo"
             clock[key] = max(clock[key], msg.t)
+            nav_present = nav_present or key == "nav"
         elif msg.schema == "clock":
             clock["now"] = max(clock["now"], msg.t)
             ctx.bus.pump(msg.t)  # release what the links held until now
@@ -397,6 +441,10 @@ def main(ctx: ServiceContext) -> int:
             for t in [t for t in navs if last is not None and t < last[0]]:
                 del navs[t]
                 counters["samples_rejected"] += 1
+            if next_tick == math.inf and ready:  # restarted: the first step it can fly
+                next_tick = math.ceil((min(ready) + delay) / fsw - 1e-9) * fsw
+                ctx.log("warning", ctrl.rejoin(next_tick), next_tick)
+                publish_gains(next_tick)
         if inbox.empty():  # what pump() just released is queued: take it in first
             advance()
         if done():

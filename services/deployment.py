@@ -32,6 +32,7 @@ __all__ = [
     "Link",
     "Navigation",
     "Orbit",
+    "Restart",
     "Run",
     "SpacecraftSpec",
     "load_deployment",
@@ -166,6 +167,21 @@ class Link:
 
 
 @dataclass(frozen=True)
+class Restart:
+    """A restart policy (DESIGN.md section 4): what the launcher does when a service whose name
+    matches ``service`` (a shell-style glob) dies before the mission ends.  ``"on-failure"``
+    starts it again, into the running mission, up to ``max_restarts`` times; ``"never"`` (the
+    default for every service) ends the run.  The first matching [[restart]] applies."""
+
+    service: str = "*"
+    policy: str = "on-failure"
+    max_restarts: int = 3
+
+
+RESTART_POLICIES = ("never", "on-failure")
+
+
+@dataclass(frozen=True)
 class Deployment:
     run: Run = field(default_factory=Run)
     bus: Bus = field(default_factory=Bus)
@@ -175,6 +191,7 @@ class Deployment:
     chief: Orbit = field(default_factory=Orbit)
     deputy: list[Deputy] = field(default_factory=list)
     link: list[Link] = field(default_factory=list)
+    restart: list[Restart] = field(default_factory=list)
     path: str = ""
 
     @property
@@ -197,6 +214,13 @@ class Deployment:
         """The largest latency (s: delay + jitter) of the link from one service to another on
         ``topic``; 0 when no [[link]] applies."""
         return rule_latency(self.links_for(subscriber), publisher, topic)
+
+    def restart_policy(self, service: str) -> Restart:
+        """The [[restart]] that applies to ``service`` (by default: never restart)."""
+        for r in self.restart:
+            if fnmatchcase(service, r.service):
+                return r
+        return Restart(service, "never", 0)
 
     def deputy_named(self, name: str) -> Deputy:
         for d in self.deputy:
@@ -402,6 +426,30 @@ def _validate_links(dep: Deployment) -> None:
             )
 
 
+def _validate_restarts(dep: Deployment) -> None:
+    services = dep.services
+    for k, r in enumerate(dep.restart):
+        w = f"restart[{k}]"
+        if r.policy not in RESTART_POLICIES:
+            raise DeploymentError(
+                f"{w}.policy: expected one of {', '.join(RESTART_POLICIES)}, got {r.policy!r}"
+            )
+        if r.max_restarts < 0:
+            raise DeploymentError(f"{w}.max_restarts: must be >= 0, got {r.max_restarts}")
+        matched = [s for s in services if fnmatchcase(s, r.service)]
+        if not matched:
+            raise DeploymentError(
+                f"{w}.service: {r.service!r} matches no service; services: {', '.join(services)}"
+            )
+        if r.policy != "never" and (fixed := {"environment", "monitor"} & set(matched)):
+            raise DeploymentError(
+                f"{w}.service: {r.service!r} would restart {', '.join(sorted(fixed))}: the "
+                "environment is the truth and the time master, the monitor the one recording "
+                'of the run; neither can be restarted into it (use service = "ctrl-*" or '
+                '"nav-*")'
+            )
+
+
 def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     dep = parse_table(Deployment, table, "")
     dep = Deployment(
@@ -409,6 +457,7 @@ def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     )
     validate(dep)
     _validate_links(dep)
+    _validate_restarts(dep)
     return dep
 
 

@@ -11,7 +11,12 @@ waits until every controller's command for the step its link delay maps to (issu
 arrives at T + delay, so the newest that can act from t_k is for floor((t_k - delay) / fsw)
 steps) is accounted for (delivered, or dropped by its link), or until the wall-clock deadline;
 a missing command leaves the last one in force (zero-order hold, as an actuator would) and is
-counted.  Real-time mode: paces the samples to wall time times run.rate and never waits.
+counted.  A controller that goes away (its liveliness token gone: crashed, restarting) is not
+waited for step by step: lock-step pauses once, up to run.command_deadline wall seconds, for it
+to come back (a restart takes a few), and from its return it is waited for again from the next
+step; while it is away its deputy holds its last command (counted in controller_away_steps).
+Real-time mode: paces the samples to
+wall time times run.rate and never waits.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import time
 import numpy as np
 
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
-from services.bus import queue_handler, wait_for_alive
+from services.bus import queue_handler, wait_for_alive, watch_alive
 from services.mission import (
     ReentryError,
     Truth,
@@ -36,6 +41,7 @@ from services.mission import (
 from services.service import ServiceContext, run_service
 
 _OBSERVED = "observed"  # inbox tag of a command seen by the link layer (see subscribe)
+_PRESENCE = "presence"  # inbox tag of a controller's liveliness change
 
 
 def main(ctx: ServiceContext) -> int:
@@ -50,18 +56,6 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
     dep = ctx.deployment
     run = dep.run
     deputies = [d.name for d in dep.deputy]
-    names = ["chief", *deputies]
-    limits = np.array([d.attitude_limit for d in dep.deputy])
-    dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
-    counters = {
-        "steps": 0,
-        "late_commands": 0,
-        "missing_commands": 0,
-        "stale_commands": 0,
-        "clipped_commands": 0,
-        "bad_commands": 0,
-    }
-
     inbox: queue.Queue = queue.Queue()
     # every command that reaches this host is also observed after its link has delivered, held
     # or dropped it: the lock-step wait ends when the command it waits for is accounted for
@@ -81,6 +75,36 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         )
         return 1
 
+    present = {sc for sc in deputies if f"ctrl-{sc}" in alive}  # controllers to wait for
+
+    def on_presence(service: str, up: bool) -> None:
+        inbox.put((_PRESENCE, (service.removeprefix("ctrl-"), up)))
+
+    presence = watch_alive(ctx.bus.session, ctx.run, "ctrl-*", on_presence)
+    try:
+        return _propagate(ctx, truth, inbox, present)
+    finally:
+        presence.undeclare()
+
+
+def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: set[str]) -> int:
+    dep = ctx.deployment
+    run = dep.run
+    deputies = [d.name for d in dep.deputy]
+    names = ["chief", *deputies]
+    limits = np.array([d.attitude_limit for d in dep.deputy])
+    dt, fsw, t_end = run.nav_period, run.fsw_period, duration(dep)
+    counters = {
+        "steps": 0,
+        "late_commands": 0,
+        "missing_commands": 0,
+        "stale_commands": 0,
+        "clipped_commands": 0,
+        "bad_commands": 0,
+        "controller_away_steps": 0,
+    }
+    away_since: dict[str, float] = {}  # wall time each away controller went
+    returned_at: dict[str, float] = {}  # step at which each came back
     sigma = np.zeros((len(deputies), 3))  # commands in force
     latest_for_t = dict.fromkeys(deputies, -math.inf)  # step of the command in force
     seen_for_t = dict.fromkeys(deputies, -math.inf)  # newest command accounted for
@@ -134,17 +158,45 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
 
         def outstanding(sc: str) -> bool:
             due = expected[sc] - 1e-6
-            return expected[sc] >= 0 and latest_for_t[sc] < due and seen_for_t[sc] < due
+            return (
+                sc in present
+                and returned_at.get(sc, -math.inf) < t_k  # back since before this step
+                and expected[sc] >= 0
+                and latest_for_t[sc] < due
+                and seen_for_t[sc] < due
+            )
+
+        def returning(sc: str) -> float | None:
+            """Wall time until which to wait for an away controller to come back."""
+            if sc in present or sc not in away_since:
+                return None
+            until = away_since[sc] + run.command_deadline
+            return until if until > time.monotonic() else None
 
         while not ctx.stop.is_set():
-            waiting = wait and any(outstanding(sc) for sc in deputies)
+            waits = [deadline] if any(outstanding(sc) for sc in deputies) else []
+            waits += [u for sc in deputies if (u := returning(sc)) is not None]
             try:
-                if waiting:
-                    kind, msg = inbox.get(timeout=max(deadline - time.monotonic(), 0.0))
+                if wait and waits:
+                    kind, msg = inbox.get(timeout=max(min(waits) - time.monotonic(), 0.0))
                 else:
                     kind, msg = inbox.get_nowait()
             except queue.Empty:
+                if wait and waits and min(waits) > time.monotonic():
+                    continue
                 break
+            if kind == _PRESENCE:
+                sc, up = msg
+                if sc in latest_for_t and up and sc not in present:
+                    present.add(sc)
+                    returned_at[sc] = t_k
+                    ctx.log("warning", f"controller of {sc} is back at t = {t_k:.0f} s", t_k)
+                elif sc in latest_for_t and not up and sc in present:
+                    present.discard(sc)
+                    away_since[sc] = time.monotonic()
+                    ctx.log("warning", f"controller of {sc} went away at t = {t_k:.0f} s; "
+                            "holding its last command", t_k)  # fmt: skip
+                continue
             sc = msg.body["sc"]
             if sc not in latest_for_t:
                 counters["bad_commands"] += kind != _OBSERVED
@@ -168,6 +220,7 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
             counters["missing_commands"] += sum(
                 expected[sc] >= 0 and latest_for_t[sc] < expected[sc] - 1e-6 for sc in deputies
             )
+        counters["controller_away_steps"] += len(set(deputies) - present)
 
     step = 0
     publish_sample(0.0, 0, truth.state, attitudes(truth.state[None])[0], final=t_end <= 0)

@@ -4,6 +4,12 @@ Reads a deployment, is the run's zenoh hub (the endpoint every service connects 
 service as its own OS process, waits for their liveliness tokens, starts the environment (the
 time master) last, waits for the mission to complete and the monitor to write its report, then
 stops everything (SIGTERM, then SIGKILL after a grace period): no orphan, no hang.
+
+Supervision: a service that dies before the mission ends is started again, into the running
+mission (``--join``), when its [[restart]] policy says so, up to its ``max_restarts``; else the
+run ends with status 1.  Inputs: ``fault/kill`` (fault messages, ``ddvi fault RUN kill
+SERVICE``): the named service is killed with SIGKILL, a crash.  Outputs: ``stats/launcher``
+(restarts, restarts.<service>, kills) after every restart or kill; ``log/launcher``.
 """
 
 from __future__ import annotations
@@ -11,6 +17,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import queue
 import signal
 import socket
 import subprocess
@@ -20,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from services.bus import BusSettings, open_session, wait_for_alive
+from services.bus import Bus, BusSettings, open_session, queue_handler, wait_for_alive
 from services.deployment import Deployment
 from services.mission import holding_margin
 
@@ -59,15 +66,19 @@ class Launcher:
         self.hub = f"tcp/127.0.0.1:{self.port}"
         self.procs: dict[str, Process] = {}
         self.quiet = quiet
+        self.restarts: dict[str, int] = {}
+        self.kills = 0
 
-    def say(self, text: str) -> None:
-        if not self.quiet:
+    def say(self, text: str, error: bool = False) -> None:
+        """Progress on stderr (not with --quiet); an error is always said."""
+        if error or not self.quiet:
             print(f"ddvi run: {text}", file=sys.stderr, flush=True)
 
-    def start(self, name: str) -> None:
+    def start(self, name: str, join: bool = False) -> None:
+        """Start one service; ``join``: a restart into the running mission (its log goes on)."""
         logs = self.out / "logs"
         logs.mkdir(parents=True, exist_ok=True)
-        log = open(logs / f"{name}.log", "wb")  # noqa: SIM115 - closed in stop_all
+        log = open(logs / f"{name}.log", "ab" if join else "wb")  # noqa: SIM115 - see stop_all
         cmd = [
             sys.executable,
             "-m",
@@ -82,11 +93,14 @@ class Launcher:
             name,
             "--out",
             str(self.out),
+            *(["--join"] if join else []),
         ]
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
         # the monitor keeps the terminal for its live status; the others log to files
         stderr = None if name == "monitor" and not self.quiet else log
         popen = subprocess.Popen(cmd, stdout=log, stderr=stderr, env=env, start_new_session=True)
+        if (old := self.procs.get(name)) is not None:
+            old.log.close()
         self.procs[name] = Process(name, popen, log)
 
     def stop_all(self, grace: float = 5.0) -> None:
@@ -105,7 +119,7 @@ class Launcher:
     def execute(self) -> int:
         """Run the mission; the exit status is 0 only when it completed and was reported."""
         self.out.mkdir(parents=True, exist_ok=True)
-        self.say(f"run {self.run}, output {self.out}")
+        self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
         for d in self.dep.deputy:
             if (margin := holding_margin(self.dep, d)) < 0:
                 self.say(
@@ -121,7 +135,7 @@ class Launcher:
                 # the monitor first, so that it records everything from the first message on
                 self.start("monitor")
                 if not wait_for_alive(session, self.run, ["monitor"], self.dep.run.startup_timeout):
-                    self.say(f"the monitor did not come alive; see {self.out / 'logs'}")
+                    self.say(f"the monitor did not come alive; see {self.out / 'logs'}", error=True)
                     return 1
                 for name in first[1:]:
                     self.start(name)
@@ -129,44 +143,90 @@ class Launcher:
                 if missing := sorted(set(first) - alive):
                     self.say(
                         f"not alive after {self.dep.run.startup_timeout} s: {missing}; "
-                        f"see {self.out / 'logs'}"
+                        f"see {self.out / 'logs'}",
+                        error=True,
                     )
                     return 1
                 self.say(
                     f"{len(first)} services alive in {time.monotonic() - started:.1f} s; "
                     "starting the environment"
                 )
-                self.start("environment")
-                return self._supervise(started)
+                with Bus(session, self.run, "launcher") as bus:
+                    faults: queue.Queue = queue.Queue()
+                    bus.subscribe("fault/kill", queue_handler(faults), expected_schema="fault")
+                    self.start("environment")
+                    return self._supervise(started, bus, faults)
         except KeyboardInterrupt:
             self.say("interrupted; stopping every service")
             return 130
         finally:
             self.stop_all()
 
-    def _supervise(self, started: float) -> int:
+    def _event(self, bus: Bus, level: str, text: str, t: float) -> None:
+        """Say it, log it on the bus, and publish the launcher's counters."""
+        self.say(text)
+        counters = {"restarts": sum(self.restarts.values()), "kills": self.kills}
+        counters.update({f"restarts.{k}": v for k, v in self.restarts.items()})
+        try:
+            bus.publish("log/launcher", "log", {"service": "launcher", "level": level,
+                        "text": text}, t)  # fmt: skip
+            bus.publish("stats/launcher", "stats", {"service": "launcher",
+                        "counters": counters}, t)  # fmt: skip
+        except Exception as exc:  # the bus is a report channel here, never a reason to stop
+            self.say(f"could not publish: {exc}")
+
+    def _kill(self, bus: Bus, target: str, t: float) -> None:
+        """A ``kill`` fault: SIGKILL the named service, as a crash would."""
+        p = self.procs.get(target)
+        if p is None or target in ("environment", "monitor") or p.popen.poll() is not None:
+            why = "no such service" if p is None else (
+                "the environment and the monitor are not killed by faults (they end the run)"
+                if target in ("environment", "monitor") else "it is not running")  # fmt: skip
+            self._event(bus, "warning", f"fault kill {target!r} ignored: {why}", t)
+            return
+        p.popen.kill()
+        self.kills += 1
+        self._event(bus, "warning", f"fault: killed {target} (SIGKILL) at t = {t:.0f} s", t)
+
+    def _supervise(self, started: float, bus: Bus, faults: queue.Queue) -> int:
         env, monitor = self.procs["environment"].popen, self.procs["monitor"].popen
+        sim_t = 0.0
         while env.poll() is None:
-            for name, p in self.procs.items():
+            while not faults.empty():
+                _, msg = faults.get_nowait()
+                sim_t = max(sim_t, msg.t)
+                if msg.body["kind"] == "kill":
+                    self._kill(bus, msg.body["target"], msg.t)
+            for name, p in list(self.procs.items()):
                 rc = p.popen.poll()
-                if rc not in (None, 0) and name != "environment":
-                    self.say(
-                        f"{name} exited with status {rc} before the mission ended; "
-                        f"see {self.out / 'logs' / (name + '.log')}"
-                    )
-                    return 1
+                if rc in (None, 0) or name == "environment":
+                    continue
+                policy = self.dep.restart_policy(name)
+                done = self.restarts.get(name, 0)
+                if policy.policy == "on-failure" and done < policy.max_restarts:
+                    self.restarts[name] = done + 1
+                    self.start(name, join=True)
+                    self._event(bus, "warning", f"{name} exited with status {rc}; restarted "
+                                f"({done + 1} of {policy.max_restarts})", sim_t)  # fmt: skip
+                    continue
+                self.say(
+                    f"{name} exited with status {rc} before the mission ended; "
+                    f"see {self.out / 'logs' / (name + '.log')}",
+                    error=True,
+                )
+                return 1
             time.sleep(0.2)
         if env.returncode != 0:
-            self.say(f"environment exited with status {env.returncode}; see its log")
+            self.say(f"environment exited with status {env.returncode}; see its log", error=True)
             return 1
         try:
             monitor.wait(timeout=60)
         except subprocess.TimeoutExpired:
-            self.say("monitor did not finish its report within 60 s")
+            self.say("monitor did not finish its report within 60 s", error=True)
             return 1
         summary = self.out / "summary.json"
         if monitor.returncode != 0 or not summary.is_file():
-            self.say(f"monitor exited with status {monitor.returncode}; no report")
+            self.say(f"monitor exited with status {monitor.returncode}; no report", error=True)
             return 1
         completed = json.loads(summary.read_text()).get("completed", False)
         self.say(

@@ -35,7 +35,10 @@ def main(ctx: ServiceContext) -> int:
     for craft in ("chief", sc):
         ctx.bus.subscribe(f"truth/{craft}", queue_handler(inbox), expected_schema="truth")
     ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
-    ctx.ready()
+    if ctx.joining:
+        ctx.log("warning", "restarted into the running mission: publishing from the next truth")
+    else:
+        ctx.ready()
     pending: dict[float, dict[str, np.ndarray]] = {}
     counters = {"published": 0, "unmatched": 0}
     final_t: float | None = None
@@ -67,6 +70,7 @@ def main(ctx: ServiceContext) -> int:
                     ctx.bus.publish(f"nav/{sc}/state", "nav", body, msg.t)
                     counters["published"] += 1
                     last_t = msg.t
+                    ctx.ready()  # a restarted service is alive once it publishes again
             # a half pair well behind the newest sample will never complete (a lost message);
             # the two subscriptions can drift apart by the steps the environment runs ahead
             # of a delayed control loop, so "well behind" is ten flight-software steps

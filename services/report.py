@@ -142,7 +142,9 @@ class RunData:
         self.clock_seen = False
         self.final_seen = False
         self.final_t: float | None = None  # time of the final clock
-        self.stats: dict[str, dict[str, int]] = {}  # service -> last counters
+        self.stats: dict[str, dict[str, int]] = {}  # service -> counters, all its processes
+        self._stats_last: dict[str, dict[str, int]] = {}  # service -> its process's last
+        self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
         self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
         self.counts: dict[str, int] = {}  # decoded messages by schema
@@ -189,8 +191,17 @@ class RunData:
         elif msg.schema == "status":
             self.sc(b["sc"]).status.append(StatusRecord(msg.t, dict(b)))
         elif msg.schema == "stats":
-            service = b["service"]
-            self.stats[service] = dict(b["counters"])
+            service, counters = b["service"], dict(b["counters"])
+            last = self._stats_last.get(service)
+            if last is not None and counters.get("sent", 0) < last.get("sent", 0):
+                # counters start again from 0: the service was restarted; keep what the
+                # previous process counted
+                base = self._stats_base.setdefault(service, {})
+                for k, v in last.items():
+                    base[k] = base.get(k, 0) + v
+            self._stats_last[service] = counters
+            base = self._stats_base.get(service, {})
+            self.stats[service] = {k: base.get(k, 0) + counters.get(k, 0) for k in base | counters}
             self.stats_t[service] = max(msg.t, self.stats_t.get(service, -math.inf))
         notable = msg.schema == "fault" or (
             msg.schema == "log" and b["level"] in ("warning", "error", "critical")
@@ -363,6 +374,10 @@ def _message_summary(data: RunData, monitor: dict[str, int]) -> dict[str, Any]:
             "late": total("late_commands"),
             "missing": total("missing_commands"),
             "rejected": total("rejected"),
+            "duplicated": total("duplicated"),
+            "reordered": total("reordered"),
+            "stale": total("stale_commands"),
+            "restarted": total("restarts"),
         },
     }
 

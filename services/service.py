@@ -1,7 +1,9 @@
 """What every service process shares: its command line, its session, its bus, its shutdown.
 
 A service is started by the launcher as ``python -m services.<module> --deployment FILE
---run RUN --hub ENDPOINT [--name NAME] [--out DIR]``.  ``run_service`` opens the zenoh session
+--run RUN --hub ENDPOINT [--name NAME] [--out DIR] [--join]``; ``--join`` marks a restart into a
+running mission (``ServiceContext.joining``): the service declares itself alive only once it can
+do its job, so that nobody waits on it before.  ``run_service`` opens the zenoh session
 (always closed, whatever happens), builds the Bus, turns SIGTERM/SIGINT into a stop request,
 runs the service's main loop, publishes its final counters and returns an exit status.
 """
@@ -39,6 +41,7 @@ class ServiceContext:
     bus: Bus
     stop: threading.Event  # set by SIGTERM/SIGINT: finish the current step and return
     out: str  # the run's output folder
+    joining: bool = False  # restarted into a running mission (the launcher's --join)
 
     def ready(self) -> None:
         """Declare the liveliness token: call once every subscription is declared, so that a
@@ -79,6 +82,7 @@ def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
     ap.add_argument("--hub", required=True, help="zenoh endpoint of the run's hub")
     ap.add_argument("--name", default=default_name, help="service name")
     ap.add_argument("--out", default=".", help="the run's output folder")
+    ap.add_argument("--join", action="store_true", help="restarted into a running mission")
     return ap.parse_args(argv)
 
 
@@ -109,7 +113,7 @@ def run_service(
             seed=dep.run.seed,
         )
         try:
-            ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out)
+            ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready
             return status

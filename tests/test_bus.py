@@ -277,6 +277,9 @@ def test_sequence_guard_accepts_each_seq_once_in_any_order() -> None:
     assert guard.check(7, 7.0) is None  # inside the window, not seen yet
     assert guard.check(0, 11.0) is None  # far older seq, newer time: the publisher restarted
     assert guard.check(0, 11.0) == "duplicate"
+    early = SequenceGuard(window=256)
+    assert [early.check(s, float(s)) for s in range(5)] == [None] * 5
+    assert early.check(1, 100.0) is None  # restarted before its first window was full
 
 
 def test_replays_and_link_duplicates_are_refused_once_counted(

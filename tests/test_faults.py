@@ -180,3 +180,147 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(tmp_path: Path) -> 
         expected = dict(zip(ref["t"][on_step].tolist(), ref["u"][on_step].tolist(), strict=True))
         assert len(commands) == len(expected) > 80, sc
         assert commands == expected, sc
+
+
+RESTARTED = """
+[run]
+name = "restarts"
+orbits = 5.0
+command_deadline = 20.0
+[bus]
+port = {port}
+[[deputy]]
+name = "lqr"
+controller = "lqr"
+[[deputy]]
+name = "ddvi"
+controller = "ddvi"
+learning = {{ learn_at_orbits = 0.6, interval = 120.0, max_iterations = 20000 }}
+{restart}
+"""
+RESTART_POLICY = """
+[[restart]]
+service = "ctrl-*"
+[[restart]]
+service = "nav-*"
+max_restarts = 1
+"""
+
+
+class Mission:
+    """A deployment started through ``ddvi run``, watched from a plain zenoh session."""
+
+    def __init__(self, tmp_path: Path, text: str) -> None:
+        self.port = free_port()
+        path = tmp_path / "mission.toml"
+        path.write_text(text.format(port=self.port))
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+        cmd = [sys.executable, "-m", "services.cli", "run", str(path)]
+        cmd += ["--output", str(tmp_path / "runs"), "--quiet"]
+        self.launcher = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env
+        )
+        self.hub = f"tcp/127.0.0.1:{self.port}"
+        self.runs = tmp_path / "runs"
+        self.run = ""
+        self.t = -1.0
+        self._stack = contextlib.ExitStack()
+        settings = BusSettings(listen=[EPHEMERAL_LOOPBACK], connect=[self.hub])
+        session = self._session = self._stack.enter_context(open_session(settings))
+        sub = session.declare_subscriber("ddvi/*/clock", self._on_clock)
+        self._stack.callback(sub.undeclare)
+
+    def _on_clock(self, sample: zenoh.Sample) -> None:
+        with contextlib.suppress(Exception):
+            self.run = str(sample.key_expr).split("/")[1]
+            self.t = max(self.t, float(msgpack.unpackb(sample.payload.to_bytes())["t"]))
+
+    def wait_for(self, t: float, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.t < t:
+            assert self.launcher.poll() is None, self.launcher.communicate()[1].decode()[-3000:]
+            assert time.monotonic() < deadline, f"simulation time {self.t} < {t}"
+            time.sleep(0.05)
+
+    def kill(self, service: str) -> None:
+        """What ``ddvi fault RUN kill SERVICE`` sends, put at once (no CLI start-up)."""
+        body = {"kind": "kill", "target": service, "params": {}}
+        payload = encode("fault", body, seq=0, t=self.t, src=f"test-{service}")
+        key = f"ddvi/{self.run}/fault/kill"
+        self._session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def fault(self, *args: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "services.cli", "fault", self.run, *args, "--hub", self.hub]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+
+    def finish(self) -> tuple[int, Path, str]:
+        try:
+            _, err = self.launcher.communicate(timeout=120)
+        finally:
+            self._stack.close()
+        # the run's folder (printed on success only): the one the launcher made
+        return self.launcher.returncode, self.runs / self.run, err.decode()
+
+
+@pytest.mark.integration
+def test_killed_services_are_restarted_and_the_mission_completes(tmp_path: Path) -> None:
+    """`ddvi fault RUN kill` crashes a controller (mid-learning) and a navigation service; the
+    launcher restarts each into the running mission as its policy says; the environment holds
+    the controller's last command while it is away; the mission completes and summary.json
+    counts the kills and restarts."""
+    mission = Mission(tmp_path, RESTARTED.replace("{restart}", RESTART_POLICY))
+    mission.wait_for(600.0)
+    r = mission.fault("kill", "ctrl-ddvi")
+    assert r.returncode == 0 and "killed ctrl-ddvi" in r.stdout, r.stdout + r.stderr
+    killed_at = float(r.stdout.split("sent at t = ")[1].split()[0])
+    mission.wait_for(killed_at + 3000.0)
+    mission.kill("nav-lqr")
+    rc, out, err = mission.finish()
+    assert rc == 0, err[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] is True
+    services = summary["messages"]["services"]
+    assert services["launcher"]["kills"] == 2
+    assert services["launcher"]["restarts.ctrl-ddvi"] == 1
+    assert services["launcher"]["restarts.nav-lqr"] == 1
+    assert summary["messages"]["totals"]["restarted"] == 2
+    # lock-step paused for the restart; the deputy held its last command for the step missed
+    assert services["environment"]["missing_commands"] >= 1
+    env_log = (out / "logs" / "environment.log").read_text()
+    assert "controller of ddvi went away" in env_log and "controller of ddvi is back" in env_log
+    ctrl_log = (out / "logs" / "ctrl-ddvi.log").read_text()
+    assert "restarted: learning starts over" in ctrl_log
+    assert "restarted into the running mission" in (out / "logs" / "nav-lqr.log").read_text()
+    recorded, complete = read_recording(out / "recording.mcap")
+    assert complete
+    cmds = {
+        sc: sorted(r.data["body"]["for_t"] for r in recorded
+                   if r.schema == "ddvi.cmd" and r.data["body"]["sc"] == sc)
+        for sc in ("lqr", "ddvi")
+    }  # fmt: skip
+    end = summary["sim_time_s"]
+    for sc, times in cmds.items():
+        assert times[-1] >= end - 60.0, sc  # both controllers fly to the end
+    # the restarted controller's commands come from a new process, after a gap
+    gaps = np.diff(cmds["ddvi"])
+    assert gaps.max() > 60.0 and cmds["ddvi"][int(np.argmax(gaps)) + 1] > killed_at
+
+
+@pytest.mark.integration
+def test_a_crash_without_restart_ends_the_run_with_the_recording_intact(tmp_path: Path) -> None:
+    """With no restart policy a crashed controller ends the run (exit 1, naming it); the
+    monitor still closes a complete recording and writes a partial report."""
+    mission = Mission(tmp_path, RESTARTED.replace("{restart}", ""))
+    mission.wait_for(300.0)
+    r = mission.fault("kill", "ctrl-nobody")
+    assert r.returncode == 1 and "'ctrl-nobody' is not alive" in r.stderr, r.stderr
+    r = mission.fault("kill", "ctrl-lqr")
+    assert r.returncode == 0, r.stdout + r.stderr
+    rc, out, err = mission.finish()
+    assert rc == 1 and "ctrl-lqr exited with status -9" in err, err[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] is False
+    recorded, complete = read_recording(out / "recording.mcap")
+    assert complete and len(recorded) == summary["messages"]["recorded"]
+    last_cmd = max(r.data["t"] for r in recorded if r.data.get("src") == "ctrl-lqr")
+    assert last_cmd >= 300.0  # what it sent before it died is there

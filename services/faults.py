@@ -1,0 +1,105 @@
+"""``ddvi fault RUN KIND ...``: inject a fault into a running deployment from the ground.
+
+A fault is a message on ``ddvi/<run>/fault/<kind>`` (schema ``fault``: kind, target, params)
+that the service responsible acts on, stamped with the run's simulation time (read from its
+clock, which also proves the run is there).  Kinds built so far:
+
+    kill SERVICE    the launcher kills the service with SIGKILL, as a crash would; its
+                    [[restart]] policy decides what follows (DESIGN.md section 4)
+
+The command waits for the launcher to say what it did (``log/launcher``) and prints it; it
+exits 1 when the run, the service or that answer is not there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import queue
+import sys
+import time
+
+import zenoh
+
+from services.bus import (
+    DEFAULT_HUB,
+    EPHEMERAL_LOOPBACK,
+    Bus,
+    BusSettings,
+    check_name,
+    open_session,
+    queue_handler,
+    wait_for_alive,
+)
+from services.schema import decode
+
+KINDS = ("kill",)
+
+
+def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The arguments of ``ddvi fault``, for ``services.cli``."""
+    p.add_argument("run", help="the run's name (ddvi run prints it: 'run <name>, ...')")
+    p.add_argument("kind", choices=KINDS, help="what to inject")
+    p.add_argument("target", help="kill: the service (ctrl-<deputy>, nav-<deputy>)")
+    p.add_argument("--hub", default=DEFAULT_HUB, help="the run's hub (ddvi run prints it)")
+    p.add_argument("--timeout", type=float, default=10.0, help="s to wait for the run's answer")
+    return p
+
+
+def _clock(session: zenoh.Session, run: str, timeout: float) -> float | None:
+    """The run's simulation time, from its next clock message (None: none within timeout)."""
+    inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    sub = session.declare_subscriber(f"ddvi/{run}/clock", lambda s: inbox.put(s.payload.to_bytes()))
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                return decode(inbox.get(timeout=0.1), "clock").t
+            except queue.Empty:
+                continue
+            except Exception:
+                continue  # not a clock we can read: wait for the next
+        return None
+    finally:
+        sub.undeclare()
+
+
+def fault_command(args: argparse.Namespace) -> int:
+    """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
+    try:
+        run, target = check_name("run", args.run), check_name("target", args.target)
+    except ValueError as exc:
+        print(f"ddvi fault: {exc}", file=sys.stderr)
+        return 2
+    settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
+    with open_session(settings) as session:
+        t = _clock(session, run, args.timeout)
+        if t is None:
+            print(
+                f"ddvi fault: no clock from run {run!r} on {args.hub} within {args.timeout:g} s; "
+                "is it running? (ddvi run prints 'run <name>, output <dir>, hub <endpoint>')",
+                file=sys.stderr,
+            )
+            return 1
+        if not wait_for_alive(session, run, [target], 2.0):
+            print(f"ddvi fault: service {target!r} is not alive in run {run!r}", file=sys.stderr)
+            return 1
+        answers: queue.Queue = queue.Queue()
+        with Bus(session, run, f"ground-{os.getpid()}") as bus:
+            bus.subscribe("log/launcher", queue_handler(answers), expected_schema="log")
+            time.sleep(0.2)  # let the subscription reach the launcher before it answers
+            bus.publish("fault/kill", "fault", {"kind": args.kind, "target": target,
+                        "params": {}}, t)  # fmt: skip
+            print(f"ddvi fault: {args.kind} {target} sent at t = {t:.0f} s")
+            deadline = time.monotonic() + args.timeout
+            while time.monotonic() < deadline:
+                try:
+                    _, msg = answers.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                text = msg.body["text"]
+                if target in text:
+                    print(f"launcher: {text}")
+                    return 1 if "ignored" in text else 0
+    print(f"ddvi fault: no answer from the launcher within {args.timeout:g} s", file=sys.stderr)
+    return 1
