@@ -169,6 +169,12 @@ class BasiliskTruth:
         before the first step."""
         return self._sigma_BN
 
+    def set_area_factor(self, deputy: int, factor: float) -> None:
+        raise RuntimeError(
+            "panel faults need the built-in truth: Basilisk 2.12's facetDragDynamicEffector "
+            "cannot change a facet's area once added"
+        )
+
     def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]:
         """Propagate from t_k over one flight-software step with the deputies' relative MRPs
         ``sigma`` (N, 3); returns the navigation sample times (K,) in (t_k, t_k + fsw] and the

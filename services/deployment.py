@@ -28,6 +28,7 @@ __all__ = [
     "DeploymentError",
     "Deputy",
     "Environment",
+    "Fault",
     "Learning",
     "Link",
     "Navigation",
@@ -182,6 +183,30 @@ RESTART_POLICIES = ("never", "on-failure")
 
 
 @dataclass(frozen=True)
+class Fault:
+    """A scheduled fault (DESIGN.md section 4), applied at ``at_orbits`` chief orbits to one
+    deputy by the service that owns what fails:
+
+    - ``panel``: the drag panel's true area becomes ``area_factor`` times the nominal design's
+      (a partly deployed or damaged panel); the environment applies it.  The controllers'
+      model keeps the nominal area.
+    - ``bias``: the navigation solution's bias becomes ``position_bias`` (m, Hill x y z) and
+      ``velocity_bias`` (m/s); the deputy's navigation service applies it.
+
+    ``ddvi fault RUN panel|bias DEPUTY ...`` injects the same at run time."""
+
+    at_orbits: float = 0.0
+    kind: str = "panel"
+    deputy: str = ""
+    area_factor: float = 1.0
+    position_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    velocity_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+FAULT_KINDS = ("panel", "bias")
+
+
+@dataclass(frozen=True)
 class Deployment:
     run: Run = field(default_factory=Run)
     bus: Bus = field(default_factory=Bus)
@@ -192,6 +217,7 @@ class Deployment:
     deputy: list[Deputy] = field(default_factory=list)
     link: list[Link] = field(default_factory=list)
     restart: list[Restart] = field(default_factory=list)
+    fault: list[Fault] = field(default_factory=list)
     path: str = ""
 
     @property
@@ -450,6 +476,33 @@ def _validate_restarts(dep: Deployment) -> None:
             )
 
 
+def _validate_faults(dep: Deployment) -> None:
+    names = [d.name for d in dep.deputy]
+    for k, f in enumerate(dep.fault):
+        w = f"fault[{k}]"
+        if f.kind not in FAULT_KINDS:
+            raise DeploymentError(
+                f"{w}.kind: expected one of {', '.join(FAULT_KINDS)}, got {f.kind!r}"
+            )
+        if f.deputy not in names:
+            raise DeploymentError(f"{w}.deputy: {f.deputy!r} is not one of {', '.join(names)}")
+        if not (math.isfinite(f.at_orbits) and 0 <= f.at_orbits < dep.run.orbits):
+            raise DeploymentError(
+                f"{w}.at_orbits: must lie in [0, run.orbits = {dep.run.orbits:g}), "
+                f"got {f.at_orbits}"
+            )
+        _positive(f"{w}.area_factor", f.area_factor)
+        for key in ("position_bias", "velocity_bias"):
+            values = getattr(f, key)
+            if len(values) != 3 or not all(math.isfinite(v) for v in values):
+                raise DeploymentError(f"{w}.{key}: expected 3 finite values")
+        if f.kind == "panel" and dep.environment.backend == "basilisk":
+            raise DeploymentError(
+                f"{w}: panel faults need the built-in truth (Basilisk 2.12's "
+                "facetDragDynamicEffector cannot change a facet's area once added)"
+            )
+
+
 def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     dep = parse_table(Deployment, table, "")
     dep = Deployment(
@@ -458,6 +511,7 @@ def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     validate(dep)
     _validate_links(dep)
     _validate_restarts(dep)
+    _validate_faults(dep)
     return dep
 
 

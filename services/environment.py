@@ -1,6 +1,7 @@
 """Environment service: the truth and the time master.
 
-Inputs:  cmd/<deputy>/att (cmd) from each controller.
+Inputs:  cmd/<deputy>/att (cmd) from each controller; fault/panel (fault: target = deputy,
+         params.area_factor) from the ground; the deployment's scheduled [[fault]] panels.
 Outputs: truth/<sc> (truth) for the chief and every deputy, exo/state (exo) and clock (clock)
          at every navigation sample; stats/environment.
 
@@ -37,11 +38,14 @@ from services.mission import (
     exostate,
     on_grid,
     open_truth,
+    orbit_period,
 )
+from services.schema import Message
 from services.service import ServiceContext, run_service
 
 _OBSERVED = "observed"  # inbox tag of a command seen by the link layer (see subscribe)
 _PRESENCE = "presence"  # inbox tag of a controller's liveliness change
+_PANEL = "fault/panel"  # topic of run-time panel faults
 
 
 def main(ctx: ServiceContext) -> int:
@@ -65,6 +69,7 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         expected_schema="cmd",
         observe=lambda _topic, msg: inbox.put((_OBSERVED, msg)),
     )
+    ctx.bus.subscribe(_PANEL, queue_handler(inbox), expected_schema="fault")
     ctx.ready()
     others = [s for s in dep.services if s != ctx.name]
     alive = wait_for_alive(ctx.bus.session, ctx.run, others, run.startup_timeout)
@@ -102,7 +107,40 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
         "clipped_commands": 0,
         "bad_commands": 0,
         "controller_away_steps": 0,
+        "panel_faults": 0,
+        "bad_faults": 0,
     }
+    # panel faults: the deployment's, at their times, and the ground's (fault/panel) at the
+    # next step; (t, deputy, area factor, origin)
+    panel_faults = [
+        (f.at_orbits * orbit_period(dep), f.deputy, f.area_factor, "scheduled")
+        for f in dep.fault
+        if f.kind == "panel"
+    ]
+
+    def apply_panel_faults(t_k: float) -> None:
+        for fault in sorted(f for f in panel_faults if f[0] <= t_k + 1e-6):
+            panel_faults.remove(fault)
+            _, sc, factor, origin = fault
+            try:
+                truth.set_area_factor(deputies.index(sc), factor)
+            except (ValueError, RuntimeError) as exc:
+                counters["bad_faults"] += 1
+                ctx.log("warning", f"fault panel {sc}: refused ({exc})", t_k)
+                continue
+            counters["panel_faults"] += 1
+            ctx.log("warning", f"fault panel {sc}: panel area now {factor:g} x nominal "
+                    f"from t = {t_k:.0f} s ({origin})", t_k)  # fmt: skip
+
+    def on_fault(msg: Message) -> None:
+        sc, factor = msg.body["target"], msg.body["params"].get("area_factor")
+        if sc not in deputies or not isinstance(factor, float | int):
+            counters["bad_faults"] += 1
+            ctx.log("warning", f"fault panel {sc}: refused (needs a deputy of this run and "
+                    f"params.area_factor; got {msg.body})", msg.t)  # fmt: skip
+            return
+        panel_faults.append((-math.inf, sc, float(factor), f"from {msg.src}"))
+
     away_since: dict[str, float] = {}  # wall time each away controller went
     returned_at: dict[str, float] = {}  # step at which each came back
     sigma = np.zeros((len(deputies), 3))  # commands in force
@@ -185,6 +223,9 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
                 if wait and waits and min(waits) > time.monotonic():
                     continue
                 break
+            if kind == _PANEL:
+                on_fault(msg)
+                continue
             if kind == _PRESENCE:
                 sc, up = msg
                 if sc in latest_for_t and up and sc not in present:
@@ -227,6 +268,7 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
     t_k = 0.0
     while t_k < t_end - 1e-6 and not ctx.stop.is_set():
         take_commands(t_k, wait=run.mode == "lockstep")
+        apply_panel_faults(t_k)
         t_next = t_k + fsw
         try:
             samples, traj = truth.step(t_k, sigma)

@@ -4,11 +4,16 @@ A fault is a message on ``ddvi/<run>/fault/<kind>`` (schema ``fault``: kind, tar
 that the service responsible acts on, stamped with the run's simulation time (read from its
 clock, which also proves the run is there).  Kinds built so far:
 
-    kill SERVICE    the launcher kills the service with SIGKILL, as a crash would; its
-                    [[restart]] policy decides what follows (DESIGN.md section 4)
+    kill SERVICE                    the launcher kills the service with SIGKILL, as a crash
+                                    would; its [[restart]] policy decides what follows
+    panel DEPUTY --area-factor F    the environment makes the deputy's true drag-panel area F
+                                    times the nominal (the controllers are not told)
+    bias DEPUTY --position X Y Z [--velocity X Y Z]
+                                    the deputy's navigation bias becomes this (m, m/s)
 
-The command waits for the launcher to say what it did (``log/launcher``) and prints it; it
-exits 1 when the run, the service or that answer is not there.
+The service that acts logs ``fault <kind> <target>: ...``; the command waits for that line,
+prints it, and exits 0, or 1 when the run, the service or that answer is not there, or the
+service refused the fault.
 """
 
 from __future__ import annotations
@@ -33,14 +38,20 @@ from services.bus import (
 )
 from services.schema import decode
 
-KINDS = ("kill",)
+KINDS = ("kill", "panel", "bias")
 
 
 def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi fault``, for ``services.cli``."""
     p.add_argument("run", help="the run's name (ddvi run prints it: 'run <name>, ...')")
     p.add_argument("kind", choices=KINDS, help="what to inject")
-    p.add_argument("target", help="kill: the service (ctrl-<deputy>, nav-<deputy>)")
+    p.add_argument("target", help="kill: a service (ctrl-<deputy>, nav-<deputy>); panel, bias: "
+                   "a deputy")  # fmt: skip
+    p.add_argument("--area-factor", type=float, help="panel: true area / nominal")
+    p.add_argument("--position", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="bias: Hill position bias, m")  # fmt: skip
+    p.add_argument("--velocity", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   default=[0.0, 0.0, 0.0], help="bias: Hill velocity bias, m/s")  # fmt: skip
     p.add_argument("--hub", default=DEFAULT_HUB, help="the run's hub (ddvi run prints it)")
     p.add_argument("--timeout", type=float, default=10.0, help="s to wait for the run's answer")
     return p
@@ -71,6 +82,20 @@ def fault_command(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"ddvi fault: {exc}", file=sys.stderr)
         return 2
+    if args.kind == "panel":
+        if args.area_factor is None or not args.area_factor > 0:
+            print("ddvi fault panel: give --area-factor F > 0", file=sys.stderr)
+            return 2
+        params, acting = {"area_factor": args.area_factor}, "environment"
+    elif args.kind == "bias":
+        if args.position is None:
+            print("ddvi fault bias: give --position X Y Z (m)", file=sys.stderr)
+            return 2
+        values = [*args.position, *args.velocity]
+        params = dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True))
+        acting = f"nav-{target}"
+    else:
+        params, acting = {}, target
     settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
     with open_session(settings) as session:
         t = _clock(session, run, args.timeout)
@@ -81,15 +106,15 @@ def fault_command(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-        if not wait_for_alive(session, run, [target], 2.0):
-            print(f"ddvi fault: service {target!r} is not alive in run {run!r}", file=sys.stderr)
+        if not wait_for_alive(session, run, [acting], 2.0):
+            print(f"ddvi fault: service {acting!r} is not alive in run {run!r}", file=sys.stderr)
             return 1
         answers: queue.Queue = queue.Queue()
         with Bus(session, run, f"ground-{os.getpid()}") as bus:
-            bus.subscribe("log/launcher", queue_handler(answers), expected_schema="log")
-            time.sleep(0.2)  # let the subscription reach the launcher before it answers
-            bus.publish("fault/kill", "fault", {"kind": args.kind, "target": target,
-                        "params": {}}, t)  # fmt: skip
+            bus.subscribe("log/*", queue_handler(answers), expected_schema="log")
+            time.sleep(0.2)  # let the subscription reach the service before it answers
+            bus.publish(f"fault/{args.kind}", "fault", {"kind": args.kind, "target": target,
+                        "params": params}, t)  # fmt: skip
             print(f"ddvi fault: {args.kind} {target} sent at t = {t:.0f} s")
             deadline = time.monotonic() + args.timeout
             while time.monotonic() < deadline:
@@ -98,8 +123,8 @@ def fault_command(args: argparse.Namespace) -> int:
                 except queue.Empty:
                     continue
                 text = msg.body["text"]
-                if target in text:
-                    print(f"launcher: {text}")
-                    return 1 if "ignored" in text else 0
-    print(f"ddvi fault: no answer from the launcher within {args.timeout:g} s", file=sys.stderr)
+                if text.startswith(f"fault {args.kind} {target}:"):
+                    print(f"{msg.body['service']}: {text}")
+                    return 1 if ": ignored" in text or ": refused" in text else 0
+    print(f"ddvi fault: no answer from {acting} within {args.timeout:g} s", file=sys.stderr)
     return 1

@@ -182,11 +182,11 @@ class Launcher:
             why = "no such service" if p is None else (
                 "the environment and the monitor are not killed by faults (they end the run)"
                 if target in ("environment", "monitor") else "it is not running")  # fmt: skip
-            self._event(bus, "warning", f"fault kill {target!r} ignored: {why}", t)
+            self._event(bus, "warning", f"fault kill {target}: ignored ({why})", t)
             return
         p.popen.kill()
         self.kills += 1
-        self._event(bus, "warning", f"fault: killed {target} (SIGKILL) at t = {t:.0f} s", t)
+        self._event(bus, "warning", f"fault kill {target}: killed (SIGKILL) at t = {t:.0f} s", t)
 
     def _supervise(self, started: float, bus: Bus, faults: queue.Queue) -> int:
         env, monitor = self.procs["environment"].popen, self.procs["monitor"].popen

@@ -7,6 +7,7 @@ the nominal linear model a deputy's controller is given, and the truth's initial
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import TYPE_CHECKING, Protocol
 
@@ -243,6 +244,11 @@ class Truth(Protocol):
 
     def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]: ...
 
+    def set_area_factor(self, deputy: int, factor: float) -> None:
+        """A panel fault: deputy number ``deputy``'s true facet area becomes ``factor`` times
+        the nominal design's from the next step on."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -264,6 +270,12 @@ class BuiltinTruth:
         )
         self._state = traj[-1]
         return samples, traj
+
+    def set_area_factor(self, deputy: int, factor: float) -> None:
+        if not (math.isfinite(factor) and factor > 0):
+            raise ValueError(f"area factor must be finite and > 0, got {factor}")
+        area = self._dep.spacecraft.area * factor
+        self._craft[deputy + 1] = dataclasses.replace(self._craft[deputy + 1], area=area)
 
     def close(self) -> None:
         pass

@@ -1,6 +1,8 @@
 """Navigation service, one per deputy: what an on-board relative navigation filter publishes.
 
-Inputs:  truth/chief, truth/<deputy> (truth); clock.
+Inputs:  truth/chief, truth/<deputy> (truth); clock; fault/bias (fault: target = deputy,
+         params px py pz (m) vx vy vz (m/s), the new bias) and the deployment's scheduled
+         [[fault]] biases.
 Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
          [x, y, z, xdot, ydot, zdot], in the frame navigation.frame names (ddvi_core.relnav:
          against the chief's path by default, or curvilinear Hill), at the configured rate,
@@ -10,6 +12,7 @@ Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
 
 from __future__ import annotations
 
+import math
 import queue
 import sys
 import time
@@ -18,7 +21,7 @@ import numpy as np
 
 from ddvi_core.constants import R_EARTH
 from services.bus import queue_handler
-from services.mission import navigation_state, on_grid
+from services.mission import navigation_state, on_grid, orbit_period
 from services.service import END_GRACE, ServiceContext, run_service
 
 
@@ -35,12 +38,20 @@ def main(ctx: ServiceContext) -> int:
     for craft in ("chief", sc):
         ctx.bus.subscribe(f"truth/{craft}", queue_handler(inbox), expected_schema="truth")
     ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
+    ctx.bus.subscribe("fault/bias", queue_handler(inbox), expected_schema="fault")
+    # bias faults: the deployment's at their times, the ground's from the next sample on
+    orbit = orbit_period(ctx.deployment)
+    bias_faults = [
+        (f.at_orbits * orbit, np.array(f.position_bias + f.velocity_bias), "scheduled")
+        for f in ctx.deployment.fault
+        if f.kind == "bias" and f.deputy == sc
+    ]
     if ctx.joining:
         ctx.log("warning", "restarted into the running mission: publishing from the next truth")
     else:
         ctx.ready()
     pending: dict[float, dict[str, np.ndarray]] = {}
-    counters = {"published": 0, "unmatched": 0}
+    counters = {"published": 0, "unmatched": 0, "bias_faults": 0, "bad_faults": 0}
     final_t: float | None = None
     final_seen = 0.0  # wall time the final clock arrived
     last_t = -1.0  # last published sample
@@ -55,6 +66,18 @@ def main(ctx: ServiceContext) -> int:
         if msg.schema == "clock":
             if msg.body["final"]:
                 final_t, final_seen = msg.t, time.monotonic()
+        elif msg.schema == "fault":
+            if msg.body["target"] != sc:
+                continue  # another deputy's navigation
+            p = msg.body["params"]
+            keys = ("px", "py", "pz", "vx", "vy", "vz")
+            values = [p.get(k, 0.0) for k in keys]
+            if not all(isinstance(v, float | int) and math.isfinite(v) for v in values):
+                counters["bad_faults"] += 1
+                ctx.log("warning", f"fault bias {sc}: refused (params {keys} must be finite "
+                        f"numbers; got {p})", msg.t)  # fmt: skip
+                continue
+            bias_faults.append((-math.inf, np.array(values, dtype=float), f"from {msg.src}"))
         elif msg.body["sc"] in ("chief", sc):
             slot = pending.setdefault(msg.t, {})
             slot[msg.body["sc"]] = np.concatenate([msg.body["r_N"], msg.body["v_N"]])
@@ -62,6 +85,13 @@ def main(ctx: ServiceContext) -> int:
                 del pending[msg.t]
                 last_pair = max(last_pair, msg.t)
                 if on_grid(msg.t, cfg.period) and msg.t > last_t:
+                    for fault in [f for f in bias_faults if f[0] <= msg.t + 1e-6]:
+                        bias_faults.remove(fault)
+                        bias = fault[1]
+                        counters["bias_faults"] += 1
+                        ctx.log("warning", f"fault bias {sc}: navigation bias now "
+                                f"{bias.tolist()} from t = {msg.t:.0f} s ({fault[2]})",
+                                msg.t)  # fmt: skip
                     x = navigation_state(ctx.deployment, deputy, slot["chief"], slot[sc]) + bias
                     if sigma.any():
                         x = x + rng.normal(0.0, 1.0, 6) * sigma

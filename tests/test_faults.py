@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ import pytest
 import zenoh
 
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
-from services.deployment import load_deployment
+from services.deployment import deployment_from_table, load_deployment
 from services.inprocess import run_in_process
 from services.launcher import free_port
 from services.monitor import read_recording
@@ -324,3 +325,68 @@ def test_a_crash_without_restart_ends_the_run_with_the_recording_intact(tmp_path
     assert complete and len(recorded) == summary["messages"]["recorded"]
     last_cmd = max(r.data["t"] for r in recorded if r.data.get("src") == "ctrl-lqr")
     assert last_cmd >= 300.0  # what it sent before it died is there
+
+
+FAULTED = RESTARTED.replace(
+    "{restart}",
+    """
+[[fault]]                 # the lqr deputy's panel deploys only 70 %
+at_orbits = 0.5
+kind = "panel"
+deputy = "lqr"
+area_factor = 0.7
+[[fault]]                 # the ddvi deputy's navigation jumps 100 m along-track
+at_orbits = 0.5
+kind = "bias"
+deputy = "ddvi"
+position_bias = [0.0, 100.0, 0.0]
+""",
+)
+
+
+def _series(csv: Path, deputy: str) -> dict[str, np.ndarray]:
+    import csv as csv_module
+
+    with csv.open() as f:
+        rows = [r for r in csv_module.DictReader(f) if r["deputy"] == deputy]
+    return {k: np.array([float(r[k]) for r in rows]) for k in ("t", "y", "nav_y")}
+
+
+@pytest.mark.integration
+def test_panel_and_bias_faults_scheduled_and_from_the_ground(tmp_path: Path) -> None:
+    """Scheduled [[fault]]s and `ddvi fault RUN panel|bias` change the truth's panel area and
+    a navigation bias at their times: the faulted deputy's truth leaves the unfaulted
+    reference from the fault on (not before), the navigation error jumps by the bias, and
+    summary.json counts every fault applied."""
+    mission = Mission(tmp_path, FAULTED)
+    orbit = 5431.0
+    mission.wait_for(0.6 * orbit)
+    r = mission.fault("panel", "ddvi", "--area-factor", "1.2")
+    assert r.returncode == 0 and "fault panel ddvi: panel area now 1.2" in r.stdout, r.stderr
+    r = mission.fault("bias", "lqr", "--position", "0", "0", "0")
+    assert r.returncode == 0 and "fault bias lqr: navigation bias now" in r.stdout, r.stderr
+    r = mission.fault("panel", "nobody", "--area-factor", "1.2")
+    assert r.returncode == 1 and "fault panel nobody: refused" in r.stdout, r.stdout + r.stderr
+    rc, out, err = mission.finish()
+    assert rc == 0, err[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    services = summary["messages"]["services"]
+    assert services["environment"]["panel_faults"] == 2
+    assert services["environment"]["bad_faults"] == 1
+    assert services["nav-ddvi"]["bias_faults"] == 1 and services["nav-lqr"]["bias_faults"] == 1
+    # the same mission with no fault, in one process: the lqr deputy's truth is the same up
+    # to its panel fault and departs from it after
+    table = tomllib.loads(FAULTED.format(port=0))
+    del table["fault"]
+    reference = run_in_process(deployment_from_table(table))["lqr"]
+    series = _series(out / "timeseries.csv", "lqr")
+    ref_y = np.interp(series["t"], reference["t"], reference["x"][:, 1])  # navigation frame
+    fault_t = 0.5 * orbit
+    before = series["t"] <= fault_t
+    assert np.max(np.abs(series["nav_y"][before] - ref_y[before])) < 1e-3
+    assert np.abs(series["nav_y"][-1] - ref_y[-1]) > 10.0
+    # the ddvi deputy's navigation error steps by the 100 m bias at its time
+    ddvi = _series(out / "timeseries.csv", "ddvi")
+    error = ddvi["nav_y"] - ddvi["y"]
+    k = int(np.searchsorted(ddvi["t"], fault_t))
+    assert abs(error[k + 1] - error[k - 2] - 100.0) < 5.0
