@@ -109,6 +109,7 @@ class Controller:
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
         self.collect_from = 0.0  # samples before this are not the learner's (see rejoin)
+        self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -227,6 +228,7 @@ class Controller:
             self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
             return f"learning at t = {t:.0f} s did not converge ({r.message}), exploring on"
         self.K, self.L = r.K, r.L
+        self.result = r
         self.phase, self.source = "learned", "ddvi"
         self.iteration, self.converged = r.iterations, True
         self.learn_info = {

@@ -29,7 +29,7 @@ from services.schema import MAX_PAYLOAD, encode, schema_for_topic
 GARBLED = """
 [run]
 name = "garbage"
-orbits = 1.0
+orbits = 3.0
 command_deadline = 20.0
 [bus]
 port = {port}
@@ -51,7 +51,7 @@ INPUTS = {
     "ctrl-ddvi": ["nav/ddvi/state", "exo/state", "clock"],
     "monitor": ["**"],
 }
-STOP_AT = 3000.0  # s of simulation time: every service is still up to count what it got
+STOP_AT = 10000.0  # s of simulation time: every service is still up to count what it got
 
 
 def _with_nan(payload: bytes) -> bytes:
@@ -129,6 +129,11 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(tmp_path: Path) -> 
     with open_session(settings) as session:
         sub = session.declare_subscriber("ddvi/**", on_sample)
         try:
+            # every service's subscriptions reach this session by gossip: give them a moment
+            # after the mission has started, so that each one gets every garbage message
+            while launcher.poll() is None and clock["t"] <= 0.0:
+                time.sleep(0.05)
+            time.sleep(1.0)
             while launcher.poll() is None and clock["t"] < STOP_AT:
                 with lock:
                     targets = dict(seen)
