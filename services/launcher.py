@@ -103,18 +103,23 @@ class Launcher:
             old.log.close()
         self.procs[name] = Process(name, popen, log)
 
-    def stop_all(self, grace: float = 5.0) -> None:
-        for p in self.procs.values():
-            if p.popen.poll() is None:
-                p.popen.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + grace
-        for p in self.procs.values():
-            try:
-                p.popen.wait(timeout=max(deadline - time.monotonic(), 0.1))
-            except subprocess.TimeoutExpired:
-                p.popen.kill()
-                p.popen.wait()
-            p.log.close()
+    def stop_all(self, grace: float = 5.0, report_grace: float = 60.0) -> None:
+        """SIGTERM the flight services (SIGKILL after ``grace`` s), then the monitor, which
+        closes its recording and writes a (partial) report: it gets ``report_grace`` s."""
+        flight = [p for name, p in self.procs.items() if name != "monitor"]
+        monitor = [p for name, p in self.procs.items() if name == "monitor"]
+        for group, wait in ((flight, grace), (monitor, report_grace)):
+            for p in group:
+                if p.popen.poll() is None:
+                    p.popen.send_signal(signal.SIGTERM)
+            deadline = time.monotonic() + wait
+            for p in group:
+                try:
+                    p.popen.wait(timeout=max(deadline - time.monotonic(), 0.1))
+                except subprocess.TimeoutExpired:
+                    p.popen.kill()
+                    p.popen.wait()
+                p.log.close()
 
     def execute(self) -> int:
         """Run the mission; the exit status is 0 only when it completed and was reported."""

@@ -6,11 +6,13 @@ import contextlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import threading
 import time
 import tomllib
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -263,21 +265,49 @@ class Mission:
         try:
             _, err = self.launcher.communicate(timeout=120)
         finally:
-            self._stack.close()
+            self.close()
         # the run's folder (printed on success only): the one the launcher made
         return self.launcher.returncode, self.runs / self.run, err.decode()
 
+    def close(self) -> None:
+        """Close the watching session (an open one hangs the interpreter at exit) and stop
+        the launcher if a failed test left it running (it stops its services)."""
+        self._stack.close()
+        if self.launcher.poll() is None:
+            self.launcher.send_signal(signal.SIGINT)
+            try:
+                self.launcher.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.launcher.kill()
+                self.launcher.communicate()
+
+
+@pytest.fixture
+def start_mission(tmp_path: Path) -> Iterator[Callable[[str], Mission]]:
+    """Start missions through ``ddvi run``; whatever happens, close them after the test."""
+    missions: list[Mission] = []
+
+    def start(text: str) -> Mission:
+        missions.append(Mission(tmp_path, text))
+        return missions[-1]
+
+    yield start
+    for mission in missions:
+        mission.close()
+
 
 @pytest.mark.integration
-def test_killed_services_are_restarted_and_the_mission_completes(tmp_path: Path) -> None:
+def test_killed_services_are_restarted_and_the_mission_completes(
+    start_mission: Callable[[str], Mission],
+) -> None:
     """`ddvi fault RUN kill` crashes a controller (mid-learning) and a navigation service; the
     launcher restarts each into the running mission as its policy says; the environment holds
     the controller's last command while it is away; the mission completes and summary.json
     counts the kills and restarts."""
-    mission = Mission(tmp_path, RESTARTED.replace("{restart}", RESTART_POLICY))
+    mission = start_mission(RESTARTED.replace("{restart}", RESTART_POLICY))
     mission.wait_for(600.0)
     r = mission.fault("kill", "ctrl-ddvi")
-    assert r.returncode == 0 and "killed ctrl-ddvi" in r.stdout, r.stdout + r.stderr
+    assert r.returncode == 0 and "fault kill ctrl-ddvi: killed" in r.stdout, r.stdout + r.stderr
     killed_at = float(r.stdout.split("sent at t = ")[1].split()[0])
     mission.wait_for(killed_at + 3000.0)
     mission.kill("nav-lqr")
@@ -290,8 +320,8 @@ def test_killed_services_are_restarted_and_the_mission_completes(tmp_path: Path)
     assert services["launcher"]["restarts.ctrl-ddvi"] == 1
     assert services["launcher"]["restarts.nav-lqr"] == 1
     assert summary["messages"]["totals"]["restarted"] == 2
-    # lock-step paused for the restart; the deputy held its last command for the step missed
-    assert services["environment"]["missing_commands"] >= 1
+    # lock-step paused for the restart (the deputy held its last command meanwhile; whether a
+    # step's command went missing depends on when in the step the kill fell)
     env_log = (out / "logs" / "environment.log").read_text()
     assert "controller of ddvi went away" in env_log and "controller of ddvi is back" in env_log
     ctrl_log = (out / "logs" / "ctrl-ddvi.log").read_text()
@@ -313,10 +343,12 @@ def test_killed_services_are_restarted_and_the_mission_completes(tmp_path: Path)
 
 
 @pytest.mark.integration
-def test_a_crash_without_restart_ends_the_run_with_the_recording_intact(tmp_path: Path) -> None:
+def test_a_crash_without_restart_ends_the_run_with_the_recording_intact(
+    start_mission: Callable[[str], Mission],
+) -> None:
     """With no restart policy a crashed controller ends the run (exit 1, naming it); the
     monitor still closes a complete recording and writes a partial report."""
-    mission = Mission(tmp_path, RESTARTED.replace("{restart}", ""))
+    mission = start_mission(RESTARTED.replace("{restart}", ""))
     mission.wait_for(300.0)
     r = mission.fault("kill", "ctrl-nobody")
     assert r.returncode == 1 and "'ctrl-nobody' is not alive" in r.stderr, r.stderr
@@ -358,12 +390,14 @@ def _series(csv: Path, deputy: str) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.integration
-def test_panel_and_bias_faults_scheduled_and_from_the_ground(tmp_path: Path) -> None:
+def test_panel_and_bias_faults_scheduled_and_from_the_ground(
+    start_mission: Callable[[str], Mission],
+) -> None:
     """Scheduled [[fault]]s and `ddvi fault RUN panel|bias` change the truth's panel area and
     a navigation bias at their times: the faulted deputy's truth leaves the unfaulted
     reference from the fault on (not before), the navigation error jumps by the bias, and
     summary.json counts every fault applied."""
-    mission = Mission(tmp_path, FAULTED)
+    mission = start_mission(FAULTED)
     orbit = 5431.0
     mission.wait_for(0.6 * orbit)
     r = mission.fault("panel", "ddvi", "--area-factor", "1.2")
