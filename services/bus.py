@@ -211,7 +211,8 @@ class _Route:
     index: int = 0  # the subscription's number on its bus (seeds its link models)
     models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
     guards: dict[tuple[str, str], SequenceGuard] = field(default_factory=dict)
-    lock: threading.Lock = field(default_factory=threading.Lock)
+    # re-entrant: a handler may change the bus's link rules (a run-time link fault)
+    lock: threading.RLock = field(default_factory=threading.RLock)
     subscriber: Any = None
 
     def all_models(self) -> list[LinkModel]:
@@ -282,6 +283,21 @@ class Bus:
                     for key, value in model.counters.items():
                         out[key] += value
         return out
+
+    def add_link_rule(self, rule: LinkRule) -> None:
+        """A link fault at run time: ``rule`` takes precedence over every rule so far for the
+        messages it matches from now on (what a link already holds keeps its due time)."""
+        routes = list(self._routes)
+        for route in routes:
+            route.lock.acquire()
+        try:
+            self._rules.insert(0, rule)
+            self._rule_cache.clear()
+            for route in routes:
+                route.models = {(i + 1, pub): m for (i, pub), m in route.models.items()}
+        finally:
+            for route in reversed(routes):
+                route.lock.release()
 
     def latency(self, publisher: str, topic: str) -> float:
         """The largest delay (s: delay + jitter) of the deployment link from ``publisher`` on

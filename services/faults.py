@@ -10,6 +10,10 @@ clock, which also proves the run is there).  Kinds built so far:
                                     times the nominal (the controllers are not told)
     bias DEPUTY --position X Y Z [--velocity X Y Z]
                                     the deputy's navigation bias becomes this (m, m/s)
+    link --from PUB --to SUB [--topic T] [--delay S] [--jitter S] [--loss P] [--duplicate P]
+         [--reorder P]              every service matching SUB impairs what it receives from
+                                    PUB (service-name globs; nav/deputy1 means nav-deputy1)
+                                    from now on, ahead of the deployment's [[link]]s
 
 The service that acts logs ``fault <kind> <target>: ...``; the command waits for that line,
 prints it, and exits 0, or 1 when the run, the service or that answer is not there, or the
@@ -36,17 +40,24 @@ from services.bus import (
     queue_handler,
     wait_for_alive,
 )
+from services.links import LINK_PARAMETERS
 from services.schema import decode
 
-KINDS = ("kill", "panel", "bias")
+KINDS = ("kill", "panel", "bias", "link")
 
 
 def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi fault``, for ``services.cli``."""
     p.add_argument("run", help="the run's name (ddvi run prints it: 'run <name>, ...')")
     p.add_argument("kind", choices=KINDS, help="what to inject")
-    p.add_argument("target", help="kill: a service (ctrl-<deputy>, nav-<deputy>); panel, bias: "
-                   "a deputy")  # fmt: skip
+    p.add_argument("target", nargs="?", help="kill: a service (ctrl-<deputy>, nav-<deputy>); "
+                   "panel, bias: a deputy; link: see --to")  # fmt: skip
+    p.add_argument("--from", dest="publisher", help="link: publishing service(s), a glob")
+    p.add_argument("--to", dest="subscriber", help="link: subscribing service(s), a glob")
+    p.add_argument("--topic", default="*", help="link: topic glob (default: all but the clock)")
+    for key in LINK_PARAMETERS:
+        unit = "s" if key in ("delay", "jitter") else "probability"
+        p.add_argument(f"--{key}", type=float, default=0.0, help=f"link: {key} ({unit})")
     p.add_argument("--area-factor", type=float, help="panel: true area / nominal")
     p.add_argument("--position", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="bias: Hill position bias, m")  # fmt: skip
@@ -77,8 +88,17 @@ def _clock(session: zenoh.Session, run: str, timeout: float) -> float | None:
 
 def fault_command(args: argparse.Namespace) -> int:
     """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
+    if args.kind == "link":
+        if not args.publisher or not args.subscriber:
+            print("ddvi fault link: give --from PUBLISHER and --to SUBSCRIBER", file=sys.stderr)
+            return 2
+        args.target = args.subscriber.replace("/", "-")
+    elif not args.target:
+        print(f"ddvi fault {args.kind}: name the target", file=sys.stderr)
+        return 2
     try:
-        run, target = check_name("run", args.run), check_name("target", args.target)
+        run = check_name("run", args.run)
+        target = args.target if args.kind == "link" else check_name("target", args.target)
     except ValueError as exc:
         print(f"ddvi fault: {exc}", file=sys.stderr)
         return 2
@@ -94,6 +114,10 @@ def fault_command(args: argparse.Namespace) -> int:
         values = [*args.position, *args.velocity]
         params = dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True))
         acting = f"nav-{target}"
+    elif args.kind == "link":
+        params = {"from": args.publisher.replace("/", "-"), "topic": args.topic}
+        params.update({k: getattr(args, k) for k in LINK_PARAMETERS})
+        acting = None  # every service the glob matches answers
     else:
         params, acting = {}, target
     settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
@@ -106,7 +130,7 @@ def fault_command(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-        if not wait_for_alive(session, run, [acting], 2.0):
+        if acting is not None and not wait_for_alive(session, run, [acting], 2.0):
             print(f"ddvi fault: service {acting!r} is not alive in run {run!r}", file=sys.stderr)
             return 1
         answers: queue.Queue = queue.Queue()
@@ -126,5 +150,6 @@ def fault_command(args: argparse.Namespace) -> int:
                 if text.startswith(f"fault {args.kind} {target}:"):
                     print(f"{msg.body['service']}: {text}")
                     return 1 if ": ignored" in text or ": refused" in text else 0
-    print(f"ddvi fault: no answer from {acting} within {args.timeout:g} s", file=sys.stderr)
+    who = acting or f"a service matching {target!r}"
+    print(f"ddvi fault: no answer from {who} within {args.timeout:g} s", file=sys.stderr)
     return 1

@@ -39,6 +39,8 @@ from fnmatch import fnmatchcase
 from typing import Any
 
 CLOCKS = ("sim", "wall")
+LINK_PARAMETERS = ("delay", "jitter", "loss", "duplicate", "reorder")
+"""The fields of ``LinkSpec``, in order."""
 
 
 @dataclass(frozen=True)

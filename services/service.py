@@ -21,9 +21,12 @@ import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from fnmatch import fnmatchcase
 
 from services.bus import Bus, BusSettings, open_session
 from services.deployment import Deployment, DeploymentError, load_deployment
+from services.links import LINK_PARAMETERS, LinkRule, LinkSpec
+from services.schema import Message
 
 log = logging.getLogger("ddvi")
 
@@ -54,6 +57,28 @@ class ServiceContext:
         self.bus.publish(
             f"stats/{self.name}", "stats", {"service": self.name, "counters": counters}, t
         )
+
+    def on_link_fault(self, _topic: str, msg: Message) -> None:
+        """``fault/link`` (``ddvi fault RUN link``): when this service matches the fault's
+        target (the subscriber glob), impair what it receives from ``params.from`` (a publisher
+        glob) on ``params.topic`` from now on, as a deployment's [[link]] would."""
+        target, p = msg.body["target"], msg.body["params"]
+        if self.name == "monitor" or not fnmatchcase(self.name, target):
+            return  # the monitor records what is published, unimpaired
+        where = f"fault link {target}: "
+        try:
+            publisher, topic = str(p.get("from", "*")), str(p.get("topic", "*"))
+            spec = LinkSpec(**{k: float(p.get(k, 0.0)) for k in LINK_PARAMETERS})
+            if self.name.startswith("nav-") and fnmatchcase("environment", publisher):
+                raise ValueError("the truth a navigation service measures is not a flight link")
+        except (TypeError, ValueError) as exc:
+            self.log("warning", where + f"refused at {self.name} ({exc})", msg.t)
+            return
+        self.bus.add_link_rule(LinkRule(publisher, topic, spec))
+        impairments = ", ".join(f"{k} {getattr(spec, k):g}" for k in LINK_PARAMETERS
+                                if getattr(spec, k)) or "none"  # fmt: skip
+        self.log("warning", where + f"{self.name} now receives {topic} from {publisher} with "
+                 f"{impairments} (from t = {msg.t:.0f} s)", msg.t)  # fmt: skip
 
     def log(self, level: str, text: str, t: float = 0.0) -> None:
         getattr(log, level if level in ("info", "warning", "error") else "info")(text)
@@ -114,6 +139,7 @@ def run_service(
         )
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
+            bus.subscribe("fault/link", ctx.on_link_fault, expected_schema="fault")
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready
             return status

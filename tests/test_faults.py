@@ -429,3 +429,28 @@ def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     error = ddvi["nav_y"] - ddvi["y"]
     k = int(np.searchsorted(ddvi["t"], fault_t))
     assert abs(error[k + 1] - error[k - 2] - 100.0) < 5.0
+
+
+@pytest.mark.integration
+def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) -> None:
+    """`ddvi fault RUN link` impairs a link of a running mission from then on: every command
+    the lossy link drops is one the environment misses, and the delayed link holds samples."""
+    mission = start_mission(RESTARTED.replace("{restart}", ""))
+    mission.wait_for(600.0)
+    r = mission.fault("link", "--from", "ctrl-lqr", "--to", "environment", "--topic",
+                      "cmd/*/att", "--loss", "0.5")  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "environment now receives cmd/*/att from ctrl-lqr with loss 0.5" in r.stdout
+    r = mission.fault("link", "--from", "nav/ddvi", "--to", "ctrl/ddvi", "--delay", "120")
+    assert r.returncode == 0 and "ctrl-ddvi now receives * from nav-ddvi with delay 120" in (
+        r.stdout), r.stdout + r.stderr  # fmt: skip
+    r = mission.fault("link", "--from", "ctrl-lqr", "--to", "environment", "--loss", "2")
+    assert r.returncode == 1 and "refused" in r.stdout, r.stdout + r.stderr
+    rc, out, err = mission.finish()
+    assert rc == 0, err[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    env = summary["messages"]["services"]["environment"]
+    assert env["dropped"] > 50
+    assert 0 <= env["missing_commands"] - env["dropped"] <= 2  # the last steps' may be lost too
+    assert summary["messages"]["services"]["ctrl-ddvi"]["delayed"] > 0
+    assert summary["completed"] is True
