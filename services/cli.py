@@ -187,6 +187,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_fault_arguments(p)
     p.set_defaults(func=fault_command)
+    p = sub.add_parser(
+        "netns", help="create or remove the network namespaces of a deployment's [[host]]s"
+    )
+    from services.netns import add_netns_arguments, netns_command
+
+    add_netns_arguments(p)
+    p.set_defaults(func=netns_command)
     return parser
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "Deputy",
     "Environment",
     "Fault",
+    "Host",
     "Learning",
     "Link",
     "Navigation",
@@ -207,6 +208,18 @@ FAULT_KINDS = ("panel", "bias")
 
 
 @dataclass(frozen=True)
+class Host:
+    """A separate network host for some services: a Linux network namespace ``netns``, joined
+    to the launcher's by a veth pair (``services.netns``: ``ddvi netns up|down``).  The
+    services whose names match ``services`` (globs) run in it and reach the run's hub, a
+    Zenoh router in the launcher, over that link.  Needs ``bus.mode = "client"`` and a fixed
+    ``bus.port``."""
+
+    netns: str = ""
+    services: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
 class Deployment:
     run: Run = field(default_factory=Run)
     bus: Bus = field(default_factory=Bus)
@@ -218,6 +231,7 @@ class Deployment:
     link: list[Link] = field(default_factory=list)
     restart: list[Restart] = field(default_factory=list)
     fault: list[Fault] = field(default_factory=list)
+    host: list[Host] = field(default_factory=list)
     path: str = ""
 
     @property
@@ -247,6 +261,13 @@ class Deployment:
             if fnmatchcase(service, r.service):
                 return r
         return Restart(service, "never", 0)
+
+    def host_of(self, service: str) -> int | None:
+        """The index of the [[host]] a service runs on (None: the launcher's own)."""
+        for k, h in enumerate(self.host):
+            if any(fnmatchcase(service, pattern) for pattern in h.services):
+                return k
+        return None
 
     def deputy_named(self, name: str) -> Deputy:
         for d in self.deputy:
@@ -503,6 +524,32 @@ def _validate_faults(dep: Deployment) -> None:
             )
 
 
+def _validate_hosts(dep: Deployment) -> None:
+    if not dep.host:
+        return
+    if dep.bus.mode != "client" or dep.bus.port == 0:
+        raise DeploymentError(
+            "host: services on other hosts reach the hub through a router: set bus.mode = "
+            '"client" and a fixed bus.port'
+        )
+    seen = set()
+    for k, h in enumerate(dep.host):
+        w = f"host[{k}]"
+        if not h.netns or not h.netns.replace("-", "").isalnum() or len(h.netns) > 12:
+            raise DeploymentError(
+                f"{w}.netns: expected a name of letters, digits and '-' (at most 12, it names "
+                f"the veth pair too), got {h.netns!r}"
+            )
+        if h.netns in seen:
+            raise DeploymentError(f"{w}.netns: {h.netns!r} is used twice")
+        seen.add(h.netns)
+        for pattern in h.services:
+            if not any(fnmatchcase(s, pattern) for s in dep.services):
+                raise DeploymentError(f"{w}.services: {pattern!r} matches no service")
+        if any(fnmatchcase("monitor", p) for p in h.services):
+            raise DeploymentError(f"{w}.services: the monitor runs beside the launcher")
+
+
 def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     dep = parse_table(Deployment, table, "")
     dep = Deployment(
@@ -512,6 +559,7 @@ def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     _validate_links(dep)
     _validate_restarts(dep)
     _validate_faults(dep)
+    _validate_hosts(dep)
     return dep
 
 

@@ -30,6 +30,8 @@ from typing import IO
 from services.bus import Bus, BusSettings, open_session, queue_handler, wait_for_alive
 from services.deployment import Deployment
 from services.mission import holding_margin
+from services.netns import exists as netns_exists
+from services.netns import hub_address
 
 MODULES = {
     "environment": "services.environment",
@@ -79,7 +81,13 @@ class Launcher:
         logs = self.out / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         log = open(logs / f"{name}.log", "ab" if join else "wb")  # noqa: SIM115 - see stop_all
+        host = self.dep.host_of(name)
+        hub = self.hub if host is None else f"tcp/{hub_address(host)}:{self.port}"
+        # a service on another host runs in its network namespace (ip netns exec execs it,
+        # so the pid and the signals are the service's own)
+        prefix = [] if host is None else ["ip", "netns", "exec", self.dep.host[host].netns]
         cmd = [
+            *prefix,
             sys.executable,
             "-m",
             module_of(name),
@@ -88,7 +96,7 @@ class Launcher:
             "--run",
             self.run,
             "--hub",
-            self.hub,
+            hub,
             "--name",
             name,
             "--out",
@@ -132,7 +140,16 @@ class Launcher:
                     f"factor {d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is "
                     f"{-margin:.0%} below the chief's, so its along-track error will grow"
                 )
-        hub = BusSettings(mode="peer", listen=[self.hub], connect=list(self.dep.bus.connect))
+        if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
+            self.say(f"network namespaces {missing} do not exist: run `ddvi netns up "
+                     f"{self.dep.path}` first (as root)", error=True)  # fmt: skip
+            return 1
+        # client-mode services need a router to relay between them; the hub listens on
+        # loopback and on the launcher's side of every other host's link
+        listen = [self.hub] + [f"tcp/{hub_address(k)}:{self.port}" for k in
+                               range(len(self.dep.host))]  # fmt: skip
+        mode = "router" if self.dep.bus.mode == "client" else "peer"
+        hub = BusSettings(mode=mode, listen=listen, connect=list(self.dep.bus.connect))
         started = time.monotonic()
         try:
             with open_session(hub) as session:
