@@ -454,3 +454,20 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
     assert 0 <= env["missing_commands"] - env["dropped"] <= 2  # the last steps' may be lost too
     assert summary["messages"]["services"]["ctrl-ddvi"]["delayed"] > 0
     assert summary["completed"] is True
+
+
+@pytest.mark.parametrize(
+    ("args", "status", "text"),
+    [
+        (["link", "--to", "ctrl-a"], 2, "give --from PUBLISHER and --to SUBSCRIBER"),
+        (["kill"], 2, "ddvi fault kill: name the target"),
+        (["panel", "a"], 2, "give --area-factor F > 0"),
+        (["bias", "a"], 2, "give --position X Y Z"),
+        (["kill", "ctrl-a", "--timeout", "0.5"], 1, "no clock from run 'norun'"),
+    ],
+)
+def test_fault_command_errors(args: list[str], status: int, text: str) -> None:
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    cmd = [sys.executable, "-m", "services.cli", "fault", "norun", *args, "--hub", hub]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert r.returncode == status and text in r.stderr, r.stderr

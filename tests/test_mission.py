@@ -211,6 +211,38 @@ def test_swarm_and_mismatch_deployments() -> None:
             {"deputy": [{"name": "a"}], "link": [{"loss": 0.1}]},
             "link[0]: impairs the environment's truth to navigation",
         ),
+        (
+            {"deputy": [{"name": "a"}], "restart": [{"service": "*"}]},
+            "restart[0].service: '*' would restart environment, monitor",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "restart": [{"service": "ctrl-*", "policy": "always"}]},
+            "restart[0].policy: expected one of never, on-failure",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "fault": [{"kind": "panel", "deputy": "b"}]},
+            "fault[0].deputy: 'b' is not one of a",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "fault": [{"kind": "panle", "deputy": "a"}]},
+            "fault[0].kind: expected one of panel, bias",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "fault": [{"deputy": "a", "at_orbits": 50.0}]},
+            "fault[0].at_orbits: must lie in [0, run.orbits = 40)",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "host": [{"netns": "x", "services": ["nav-*"]}]},
+            'host: services on other hosts reach the hub through a router: set bus.mode = "client"',
+        ),
+        (
+            {
+                "deputy": [{"name": "a"}],
+                "bus": {"mode": "client", "port": 7000},
+                "host": [{"netns": "x", "services": ["monitor"]}],
+            },
+            "host[0].services: the monitor runs beside the launcher",
+        ),
     ],
 )
 def test_bad_deployment_names_the_key(table: dict, needle: str) -> None:
