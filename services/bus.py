@@ -199,6 +199,20 @@ class SequenceGuard:
         return None
 
 
+class SequenceGuards:
+    """One ``SequenceGuard`` per (publisher, topic), made on first use."""
+
+    def __init__(self) -> None:
+        self._guards: dict[tuple[str, str], SequenceGuard] = {}
+
+    def check(self, message: Message, topic: str) -> str | None:
+        """``SequenceGuard.check`` of the message's publisher on ``topic``."""
+        guard = self._guards.get((message.src, topic))
+        if guard is None:
+            guard = self._guards[(message.src, topic)] = SequenceGuard()
+        return guard.check(message.seq, message.t)
+
+
 @dataclass
 class _Route:
     """One subscription: its handler, schema filter, its link models (an explicit one for every
@@ -210,7 +224,7 @@ class _Route:
     observe: Handler | None = None
     index: int = 0  # the subscription's number on its bus (seeds its link models)
     models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
-    guards: dict[tuple[str, str], SequenceGuard] = field(default_factory=dict)
+    guards: SequenceGuards = field(default_factory=SequenceGuards)
     # re-entrant: a handler may change the bus's link rules (a run-time link fault)
     lock: threading.RLock = field(default_factory=threading.RLock)
     subscriber: Any = None
@@ -432,10 +446,7 @@ class Bus:
         as a receiver behind a real network would."""
         delivered = 0
         for topic, message in items:
-            guard = route.guards.get((message.src, topic))
-            if guard is None:
-                guard = route.guards[(message.src, topic)] = SequenceGuard()
-            if (why := guard.check(message.seq, message.t)) is not None:
+            if (why := route.guards.check(message, topic)) is not None:
                 self._reject(
                     self.prefix + topic,
                     why,

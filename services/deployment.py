@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ddvi_core.relnav import FRAMES
-from services.links import LinkRule, LinkSpec, rule_latency
+from services.links import LinkRule, LinkSpec, impairs_truth, rule_latency
 
 __all__ = [
     "Atmosphere",
@@ -455,12 +455,9 @@ def _validate_links(dep: Deployment) -> None:
                 raise DeploymentError(
                     f"{w}.{key}: {pattern!r} matches no service; services: {', '.join(services)}"
                 )
-        navs = [s for s in services if s.startswith("nav-")]
-        if fnmatchcase("environment", link.publisher) and any(
-            fnmatchcase(s, link.subscriber) for s in navs
+        if any(
+            impairs_truth(link.publisher, s) for s in services if fnmatchcase(s, link.subscriber)
         ):
-            # the truth is what a sensor measures, not a message a flight link carries; and
-            # a lock-step loop could not tell a lost truth from a late one
             raise DeploymentError(
                 f"{w}: impairs the environment's truth to navigation "
                 f"({link.publisher!r} -> {link.subscriber!r}); impair navigation -> controller "

@@ -200,10 +200,15 @@ class Launcher:
     def _kill(self, bus: Bus, target: str, t: float) -> None:
         """A ``kill`` fault: SIGKILL the named service, as a crash would."""
         p = self.procs.get(target)
-        if p is None or target in ("environment", "monitor") or p.popen.poll() is not None:
-            why = "no such service" if p is None else (
-                "the environment and the monitor are not killed by faults (they end the run)"
-                if target in ("environment", "monitor") else "it is not running")  # fmt: skip
+        if p is None:
+            why = "no such service"
+        elif target in ("environment", "monitor"):
+            why = "the environment and the monitor are not killed by faults (they end the run)"
+        elif p.popen.poll() is not None:
+            why = "it is not running"
+        else:
+            why = ""
+        if why:
             self._event(bus, "warning", f"fault kill {target}: ignored ({why})", t)
             return
         p.popen.kill()

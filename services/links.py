@@ -102,6 +102,13 @@ def select_rule(rules: Sequence[LinkRule], publisher: str, topic: str) -> int | 
     return None
 
 
+def impairs_truth(publisher: str, subscriber: str) -> bool:
+    """Whether a link from ``publisher`` (a glob) to the service ``subscriber`` would impair
+    the environment's truth to a navigation service: it is what a sensor measures, not a
+    message a flight link carries (and a lock-step loop could not tell it lost from late)."""
+    return subscriber.startswith("nav-") and fnmatchcase("environment", publisher)
+
+
 def rule_latency(rules: Sequence[LinkRule], publisher: str, topic: str) -> float:
     """The largest latency (s: delay + jitter) the first matching rule gives a message from
     ``publisher`` on ``topic``; 0 when no rule matches."""

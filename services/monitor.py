@@ -72,7 +72,7 @@ from services.bus import (
     EPHEMERAL_LOOPBACK,
     SEQUENCE_REASONS,
     BusSettings,
-    SequenceGuard,
+    SequenceGuards,
     open_session,
 )
 from services.report import RunData, ns, write_report
@@ -436,7 +436,7 @@ class Monitor:
         # recorded, but kept out of the report: a replayed stats or gains message must not
         # overwrite newer figures
         self.counters.update({f"ignored.{r}": 0 for r in SEQUENCE_REASONS})
-        self.guards: dict[tuple[str, str], SequenceGuard] = {}
+        self.guards = SequenceGuards()
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
         self.others = [s for s in ctx.deployment.services if s != ctx.name]
@@ -482,8 +482,7 @@ class Monitor:
             rec.rejected(topic, key, value, err, recv_ns, self.data.sim_t)
         else:
             rec.message(topic, msg, recv_ns)  # everything received is recorded
-            guard = self.guards.setdefault((msg.src, topic), SequenceGuard())
-            if (why := guard.check(msg.seq, msg.t)) is not None:
+            if (why := self.guards.check(msg, topic)) is not None:
                 n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
                 if n <= 10 or n % 1000 == 0:
                     log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)

@@ -25,7 +25,7 @@ from fnmatch import fnmatchcase
 
 from services.bus import Bus, BusSettings, open_session
 from services.deployment import Deployment, DeploymentError, load_deployment
-from services.links import LINK_PARAMETERS, LinkRule, LinkSpec
+from services.links import LINK_PARAMETERS, LinkRule, LinkSpec, impairs_truth
 from services.schema import Message
 
 log = logging.getLogger("ddvi")
@@ -69,7 +69,7 @@ class ServiceContext:
         try:
             publisher, topic = str(p.get("from", "*")), str(p.get("topic", "*"))
             spec = LinkSpec(**{k: float(p.get(k, 0.0)) for k in LINK_PARAMETERS})
-            if self.name.startswith("nav-") and fnmatchcase("environment", publisher):
+            if impairs_truth(publisher, self.name):
                 raise ValueError("the truth a navigation service measures is not a flight link")
         except (TypeError, ValueError) as exc:
             self.log("warning", where + f"refused at {self.name} ({exc})", msg.t)

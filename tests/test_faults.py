@@ -100,59 +100,48 @@ def garbage_for(topic: str, valid: bytes, rng: np.random.Generator) -> dict[str,
 
 
 @pytest.mark.integration
-def test_garbage_on_every_topic_changes_nothing_the_craft_do(tmp_path: Path) -> None:
+def test_garbage_on_every_topic_changes_nothing_the_craft_do(
+    start_mission: Callable[[str], Mission],
+) -> None:
     """An intruder on the bus puts random bytes, truncated, oversized, wrong-schema,
     NaN-carrying and replayed copies of real messages on every topic of a running mission,
     several times a second.  Every service rejects and counts them and goes on: the mission
     completes, no handler fails, and every command is bit-identical to the same mission run
     in one process with no bus."""
-    port = free_port()
-    dep_path = tmp_path / "garbage.toml"
-    dep_path.write_text(GARBLED.format(port=port))
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "services.cli", "run", str(dep_path)]
-    cmd += ["--output", str(tmp_path / "runs"), "--quiet"]
-    launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    mission = start_mission(GARBLED)
     seen: dict[str, bytes] = {}  # key -> the first valid payload on it
-    clock = {"t": 0.0}
     lock = threading.Lock()
 
     def on_sample(sample: zenoh.Sample) -> None:
-        key, payload = str(sample.key_expr), sample.payload.to_bytes()
-        with lock:
-            seen.setdefault(key, payload)  # the first is the mission's: we send on seen keys
-            if key.endswith("/clock"):
-                with contextlib.suppress(Exception):  # our own garbage loops back too
-                    clock["t"] = max(clock["t"], float(msgpack.unpackb(payload)["t"]))
+        with lock:  # the first is the mission's: we send on seen keys
+            seen.setdefault(str(sample.key_expr), sample.payload.to_bytes())
 
     rounds: dict[str, int] = {}  # key -> how many times each kind of garbage went on it
     rng = np.random.default_rng(7)
-    settings = BusSettings(listen=[EPHEMERAL_LOOPBACK], connect=[f"tcp/127.0.0.1:{port}"])
-    with open_session(settings) as session:
-        sub = session.declare_subscriber("ddvi/**", on_sample)
-        try:
-            # every service's subscriptions reach this session by gossip: give them a moment
-            # after the mission has started, so that each one gets every garbage message
-            while launcher.poll() is None and clock["t"] <= 0.0:
-                time.sleep(0.05)
-            time.sleep(1.0)
-            while launcher.poll() is None and clock["t"] < STOP_AT:
-                with lock:
-                    targets = dict(seen)
-                for key, valid in targets.items():
-                    if "/alive/" in key:
-                        continue
-                    topic = key.split("/", 2)[2]
-                    for payload in garbage_for(topic, valid, rng).values():
-                        session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
-                    rounds[key] = rounds.get(key, 0) + 1
-                time.sleep(0.1)
-        finally:
-            sub.undeclare()
-    out_text, err_text = launcher.communicate(timeout=90)
-    assert launcher.returncode == 0, err_text.decode()[-3000:]
+    sub = mission.session.declare_subscriber("ddvi/**", on_sample)
+    try:
+        # every service's subscriptions reach this session by gossip: give them a moment
+        # after the mission has started, so that each one gets every garbage message
+        mission.wait_for(0.0)
+        time.sleep(1.0)
+        while mission.launcher.poll() is None and mission.t < STOP_AT:
+            with lock:
+                targets = dict(seen)
+            for key, valid in targets.items():
+                if "/alive/" in key:
+                    continue
+                topic = key.split("/", 2)[2]
+                for payload in garbage_for(topic, valid, rng).values():
+                    mission.session.put(
+                        key, payload, congestion_control=zenoh.CongestionControl.BLOCK
+                    )
+                rounds[key] = rounds.get(key, 0) + 1
+            time.sleep(0.1)
+    finally:
+        sub.undeclare()
+    rc, out, err = mission.finish()
+    assert rc == 0, err[-3000:]
     assert sum(rounds.values()) > 50, rounds  # the intruder was heard during the run
-    out = Path(out_text.decode().strip().splitlines()[-1])
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
     services = summary["messages"]["services"]
@@ -181,7 +170,7 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(tmp_path: Path) -> 
     for r in recorded:
         if r.schema == "ddvi.cmd" and r.data["src"] == f"ctrl-{r.data['body']['sc']}":
             flown[r.data["body"]["sc"]][r.data["body"]["for_t"]] = r.data["body"]["sigma"][2]
-    reference = run_in_process(load_deployment(str(dep_path)))
+    reference = run_in_process(load_deployment(str(mission.path)))
     for sc, commands in flown.items():
         ref = reference[sc]
         on_step = np.isclose(np.mod(ref["t"], 60.0), 0.0)
@@ -220,7 +209,7 @@ class Mission:
 
     def __init__(self, tmp_path: Path, text: str) -> None:
         self.port = free_port()
-        path = tmp_path / "mission.toml"
+        path = self.path = tmp_path / "mission.toml"
         path.write_text(text.format(port=self.port))
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
         cmd = [sys.executable, "-m", "services.cli", "run", str(path)]
@@ -234,7 +223,7 @@ class Mission:
         self.t = -1.0
         self._stack = contextlib.ExitStack()
         settings = BusSettings(listen=[EPHEMERAL_LOOPBACK], connect=[self.hub])
-        session = self._session = self._stack.enter_context(open_session(settings))
+        session = self.session = self._stack.enter_context(open_session(settings))
         sub = session.declare_subscriber("ddvi/*/clock", self._on_clock)
         self._stack.callback(sub.undeclare)
 
@@ -255,7 +244,7 @@ class Mission:
         body = {"kind": "kill", "target": service, "params": {}}
         payload = encode("fault", body, seq=0, t=self.t, src=f"test-{service}")
         key = f"ddvi/{self.run}/fault/kill"
-        self._session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def fault(self, *args: str) -> subprocess.CompletedProcess:
         cmd = [sys.executable, "-m", "services.cli", "fault", self.run, *args, "--hub", self.hub]

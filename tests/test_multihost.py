@@ -57,6 +57,13 @@ def _run(path: Path, out: Path) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
 
 
+def _completed_summary(path: Path, out: Path) -> dict:
+    """Run the deployment, assert it exited 0, and return its summary.json."""
+    r = _run(path, out)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads((Path(r.stdout.strip().splitlines()[-1]) / "summary.json").read_text())
+
+
 def test_the_mission_runs_across_network_namespaces(
     multihost: tuple[Deployment, Path], tmp_path: Path
 ) -> None:
@@ -66,10 +73,7 @@ def test_the_mission_runs_across_network_namespaces(
     netns.up(dep)
     links = [f"ddvi{k}h" for k in range(len(dep.host))]
     before = {i: _bytes(i) for i in links}
-    r = _run(path, tmp_path / "runs")
-    assert r.returncode == 0, r.stderr[-3000:]
-    out = Path(r.stdout.strip().splitlines()[-1])
-    summary = json.loads((out / "summary.json").read_text())
+    summary = _completed_summary(path, tmp_path / "runs")
     assert summary["completed"] is True
     assert summary["messages"]["totals"]["rejected"] == 0
     # one orbit: 543 navigation samples and 91 commands a deputy (stats count up to the last
@@ -90,10 +94,7 @@ def test_netem_delay_and_loss_on_the_hosts_links(
         netns.up(dep, delay_ms=2.0, loss_pct=1.0)
     except netns.NetnsError as exc:
         pytest.skip(f"tc netem is not available here: {exc}")
-    r = _run(path, tmp_path / "runs")
-    assert r.returncode == 0, r.stderr[-3000:]
-    out = Path(r.stdout.strip().splitlines()[-1])
-    summary = json.loads((out / "summary.json").read_text())
+    summary = _completed_summary(path, tmp_path / "runs")
     # TCP retransmits what netem loses: the mission completes with nothing missing
     assert summary["completed"] is True
     assert summary["messages"]["totals"]["missing"] == 0
