@@ -42,7 +42,17 @@ from typing import Any
 import zenoh
 
 from services.links import CLOCKS, LinkModel, LinkRule, rule_latency, select_rule
-from services.schema import MAX_PAYLOAD, REASONS, Message, MessageError, decode, encode
+from services.schema import (
+    MAX_BATCH,
+    MAX_PAYLOAD,
+    REASONS,
+    Message,
+    MessageError,
+    decode,
+    encode,
+    pack_batch,
+    unpack_batch,
+)
 
 log = logging.getLogger("ddvi.bus")
 
@@ -263,6 +273,8 @@ class Bus:
         self._count_lock = threading.Lock()  # counters only; never held while calling out
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._seq: dict[str, int] = {}
+        self._batching = 0  # depth of open ``batch()`` blocks
+        self._held: dict[str, list[bytes]] = {}  # topic -> payloads of the open batch
         self._routes: list[_Route] = []
         self._token: zenoh.LivelinessToken | None = None
         self._sim_time = 0.0
@@ -332,18 +344,50 @@ class Bus:
                 raise RuntimeError(f"bus of {self.service} is closed")
             seq = self._seq.get(topic, 0)
             payload = encode(schema, body, seq=seq, t=t, src=self.service)
-            publisher = self._publishers.get(topic)
-            if publisher is None:
-                publisher = self.session.declare_publisher(
-                    self.prefix + topic,
-                    encoding=zenoh.Encoding(MSGPACK_ENCODING),
-                    congestion_control=zenoh.CongestionControl.BLOCK,
-                )
-                self._publishers[topic] = publisher
             self._seq[topic] = seq + 1
-            publisher.put(payload)
+            if self._batching:
+                held = self._held.setdefault(topic, [])
+                size = sum(map(len, held)) + len(payload)
+                if held and (len(held) >= MAX_BATCH or size > MAX_PAYLOAD // 2):  # packs in one
+                    self._put(topic, held)
+                    held.clear()
+                held.append(payload)
+            else:
+                self._put(topic, [payload])
         self._count("sent")
         return seq
+
+    @contextmanager
+    def batch(self) -> Iterator[None]:
+        """Hold what is published inside the block and put it out at its end as one zenoh
+        sample per topic (``services.schema.pack_batch``; a lone message goes out as itself).
+        A lock-step publisher wraps one step's messages in it: receivers still see each
+        message, with its own seq and time, but the bus carries a sample per topic and step.
+        Blocks nest; the outermost one sends."""
+        with self._pub_lock:
+            self._batching += 1
+        try:
+            yield
+        finally:
+            with self._pub_lock:
+                self._batching -= 1
+                if not self._batching and not self._closed:
+                    held, self._held = self._held, {}
+                    for topic, payloads in held.items():
+                        if payloads:
+                            self._put(topic, payloads)
+
+    def _put(self, topic: str, payloads: list[bytes]) -> None:
+        """Put one message, or several as a batch, on ``topic`` (caller holds _pub_lock)."""
+        publisher = self._publishers.get(topic)
+        if publisher is None:
+            publisher = self.session.declare_publisher(
+                self.prefix + topic,
+                encoding=zenoh.Encoding(MSGPACK_ENCODING),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+            self._publishers[topic] = publisher
+        publisher.put(payloads[0] if len(payloads) == 1 else pack_batch(payloads))
 
     # -- subscribing ------------------------------------------------------------------------
 
@@ -398,15 +442,31 @@ class Bus:
         return model
 
     def _on_sample(self, route: _Route, sample: zenoh.Sample) -> None:
-        """Zenoh callback: must never raise."""
+        """Zenoh callback: must never raise.  A batch is taken apart and each of its messages
+        goes through ``_on_message`` as if it had come alone."""
         try:
             key = str(sample.key_expr)
-            topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
             try:
                 size = len(sample.payload)
                 if size > MAX_PAYLOAD:
                     raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
-                message = decode(sample.payload.to_bytes(), route.expected)
+                payload = sample.payload.to_bytes()
+                parts = unpack_batch(payload)
+            except MessageError as err:
+                self._reject(key, err.reason, str(err))
+                return
+            for part in parts or (payload,):
+                self._on_message(route, key, part)
+        except Exception:
+            self._count("handler_errors")
+            log.exception("%s: error in bus callback", self.service)
+
+    def _on_message(self, route: _Route, key: str, payload: bytes) -> None:
+        """One message off the wire: decode, link, deliver (see ``subscribe``)."""
+        try:
+            topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+            try:
+                message = decode(payload, route.expected)
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
                 return

@@ -2,8 +2,9 @@
 
 Inputs:  cmd/<deputy>/att (cmd) from each controller; fault/panel (fault: target = deputy,
          params.area_factor) from the ground; the deployment's scheduled [[fault]] panels.
-Outputs: truth/<sc> (truth) for the chief and every deputy, exo/state (exo) and clock (clock)
-         at every navigation sample; stats/environment.
+Outputs: truth/<sc> (truth) for the chief and every deputy and exo/state (exo) at every
+         navigation sample; clock (clock) at every flight-software step in lock-step (at every
+         sample in real time); stats/environment.
 
 Propagates every craft in one ODE (two-body + J2 + facet drag, ddvi_core.truth), one
 flight-software step at a time, with each deputy's commanded relative MRP (clipped to its
@@ -22,6 +23,7 @@ wall time times run.rate and never waits.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import sys
@@ -176,12 +178,17 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
             )
         v, phase = exostate(dep, t)
         ctx.bus.publish("exo/state", "exo", {"v": v, "phase": phase}, t)
-        ctx.bus.publish(
-            "clock",
-            "clock",
-            {"step": step, "dt": dt, "fsw": on_grid(t, fsw), "mode": run.mode, "final": final},
-            t,
-        )
+        fsw_step = on_grid(t, fsw)
+        # lock-step services step on flight-software boundaries: a clock between them would
+        # only cost every subscriber a message; real time keeps one a sample (its wall-clock
+        # links are released at clock messages)
+        if fsw_step or final or run.mode == "realtime":
+            ctx.bus.publish(
+                "clock",
+                "clock",
+                {"step": step, "dt": dt, "fsw": fsw_step, "mode": run.mode, "final": final},
+                t,
+            )
 
     def expected_step(sc: str, t_k: float) -> float:
         """The newest command step that can be in force from t_k on (negative: none yet)."""
@@ -283,9 +290,12 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
             )
             break
         sigma_BN = attitudes(traj)
-        for k, t in enumerate(samples):
-            step += 1
-            publish_sample(float(t), step, traj[k], sigma_BN[k], final=abs(t - t_end) < 1e-6)
+        # lock-step: the step's samples leave together, one zenoh sample per topic (each
+        # message keeps its own seq and time); real time paces them one by one
+        with ctx.bus.batch() if run.mode == "lockstep" else contextlib.nullcontext():
+            for k, t in enumerate(samples):
+                step += 1
+                publish_sample(float(t), step, traj[k], sigma_BN[k], final=abs(t - t_end) < 1e-6)
         t_k = t_next
         counters["steps"] += 1
         if counters["steps"] % run.status_every == 0:

@@ -6,7 +6,7 @@ Run by the launcher, first of all services::
 
 It subscribes to ``ddvi/<run>/**`` with a raw zenoh subscriber (not ``Bus.subscribe``, so that
 undecodable payloads are recorded too) and to the run's liveliness tokens, and writes
-``DIR/recording.mcap``:
+``DIR/recording.mcap`` (a batch, ``services.schema.unpack_batch``, message by message):
 
     <topic>            one channel per topic (and schema), message_encoding "json": the wire
                        message as JSON {"schema", "version", "seq", "t", "src", "body"} with a
@@ -63,6 +63,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+import orjson
 import zenoh
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
@@ -91,6 +92,7 @@ from services.schema import (
     Str,
     decode,
     schema_for_topic,
+    unpack_batch,
 )
 from services.service import ServiceContext, run_service
 
@@ -185,10 +187,6 @@ ALIVE_SCHEMA = {
 }
 
 
-def _jsonable(body: dict[str, Any]) -> dict[str, Any]:
-    return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in body.items()}
-
-
 class Recorder:
     """An MCAP file of JSON channels, flushed on demand, closed exactly once."""
 
@@ -236,7 +234,7 @@ class Recorder:
         seq: int = 0,
     ) -> None:
         cid = self._channel(topic, schema_name, schema)
-        payload = json.dumps(data, separators=(",", ":")).encode()
+        payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
         self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
         self.messages += 1
 
@@ -247,7 +245,7 @@ class Recorder:
             "seq": msg.seq,
             "t": msg.t,
             "src": msg.src,
-            "body": _jsonable(msg.body),
+            "body": msg.body,  # validated: finite float64 arrays, which orjson writes as lists
         }
         schema = _recorded_schema(msg.schema)
         self.write(topic, f"ddvi.{msg.schema}", schema, data, log_ns, ns(msg.t), msg.seq)
@@ -469,30 +467,48 @@ class Monitor:
             rec.alive(name, bool(value), recv_ns, self.data.sim_t)
             return
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+        try:
+            parts = unpack_batch(value)
+        except MessageError as err:
+            self.counters["received"] += 1
+            self.data.seen(recv_ns)
+            self.reject(topic, key, value, err, recv_ns)
+            return
+        for part in parts or (value,):  # a batch is recorded message by message
+            self.handle_message(topic, key, part, recv_ns)
+
+    def reject(self, topic: str, key: str, value: bytes, err: MessageError, recv_ns: int) -> None:
+        assert self.recorder is not None
+        self.counters["rejected"] += 1
+        self.counters[f"rejected.{err.reason}"] += 1
+        n = self.counters[f"rejected.{err.reason}"]
+        if n <= 10 or n % 1000 == 0:
+            log.warning("rejected %s (%s, #%d): %s", key, err.reason, n, err)
+        self.recorder.rejected(topic, key, value, err, recv_ns, self.data.sim_t)
+        self.counters["recorded"] = self.recorder.messages
+
+    def handle_message(self, topic: str, key: str, value: bytes, recv_ns: int) -> None:
+        rec = self.recorder
+        assert rec is not None
         self.counters["received"] += 1
         self.data.seen(recv_ns)
         try:
             msg = decode(value, schema_for_topic(topic))  # a truth on a cmd topic is garbage
         except MessageError as err:
-            self.counters["rejected"] += 1
-            self.counters[f"rejected.{err.reason}"] += 1
-            n = self.counters[f"rejected.{err.reason}"]
+            self.reject(topic, key, value, err, recv_ns)
+            return
+        rec.message(topic, msg, recv_ns)  # everything received is recorded
+        if (why := self.guards.check(msg, topic)) is not None:
+            n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
             if n <= 10 or n % 1000 == 0:
-                log.warning("rejected %s (%s, #%d): %s", key, err.reason, n, err)
-            rec.rejected(topic, key, value, err, recv_ns, self.data.sim_t)
-        else:
-            rec.message(topic, msg, recv_ns)  # everything received is recorded
-            if (why := self.guards.check(msg, topic)) is not None:
-                n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
-                if n <= 10 or n % 1000 == 0:
-                    log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)
-                self.counters["recorded"] = rec.messages
-                return
-            try:
-                self.data.ingest(topic, msg)
-            except Exception:  # one odd message must not take the recording down
-                self.counters["handler_errors"] += 1
-                log.exception("could not use %s at t = %s", key, msg.t)
+                log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)
+            self.counters["recorded"] = rec.messages
+            return
+        try:
+            self.data.ingest(topic, msg)
+        except Exception:  # one odd message must not take the recording down
+            self.counters["handler_errors"] += 1
+            log.exception("could not use %s at t = %s", key, msg.t)
         self.counters["recorded"] = rec.messages
 
     def done(self, service: str) -> bool:
@@ -660,13 +676,23 @@ def _compact(value: Any, width: int = 160) -> str:
     return text if len(text) <= width else text[: width - 3] + "..."
 
 
-def format_sample(key: str, payload: bytes) -> str:
-    """One line for one bus message: key, schema, t, compact body (or why it is rejected)."""
+def format_sample(key: str, payload: bytes) -> list[str]:
+    """One line per bus message of a zenoh sample (a batch holds several): key, schema, t,
+    compact body (or why it is rejected)."""
     try:
-        msg = decode(payload)
+        parts = unpack_batch(payload)
     except MessageError as err:
-        return f"{key} REJECTED {err.reason} ({len(payload)} B): {err}"
-    return f"{key} {msg.schema} t={msg.t:.3f} src={msg.src} seq={msg.seq} {_compact(msg.body)}"
+        return [f"{key} REJECTED {err.reason} ({len(payload)} B): {err}"]
+    lines = []
+    for part in parts or (payload,):
+        try:
+            msg = decode(part)
+        except MessageError as err:
+            lines.append(f"{key} REJECTED {err.reason} ({len(part)} B): {err}")
+            continue
+        body = _compact(msg.body)
+        lines.append(f"{key} {msg.schema} t={msg.t:.3f} src={msg.src} seq={msg.seq} {body}")
+    return lines
 
 
 def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None = None) -> int:
@@ -690,8 +716,10 @@ def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None 
                     key, payload = inbox.get(timeout=0.1)
                 except queue.Empty:
                     continue
-                emit(format_sample(key, payload))
-                shown += 1
+                for line in format_sample(key, payload):
+                    if count <= 0 or shown < count:
+                        emit(line)
+                        shown += 1
         except KeyboardInterrupt:
             pass
         finally:

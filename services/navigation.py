@@ -22,6 +22,7 @@ import numpy as np
 from ddvi_core.constants import R_EARTH
 from services.bus import queue_handler
 from services.mission import navigation_state, on_grid, orbit_period
+from services.schema import Message
 from services.service import END_GRACE, ServiceContext, run_service
 
 
@@ -56,19 +57,15 @@ def main(ctx: ServiceContext) -> int:
     final_seen = 0.0  # wall time the final clock arrived
     last_t = -1.0  # last published sample
     last_pair = -1.0  # last sample for which both truths arrived
-    while not ctx.stop.is_set():
-        try:
-            _, msg = inbox.get(timeout=0.5)
-        except queue.Empty:
-            if final_t is not None and time.monotonic() - final_seen > END_GRACE:
-                break  # the last truth never came (a lost message): nothing more will
-            continue
+
+    def handle(msg: Message) -> None:
+        nonlocal final_t, final_seen, last_t, last_pair, bias
         if msg.schema == "clock":
             if msg.body["final"]:
                 final_t, final_seen = msg.t, time.monotonic()
         elif msg.schema == "fault":
             if msg.body["target"] != sc:
-                continue  # another deputy's navigation
+                return  # another deputy's navigation
             p = msg.body["params"]
             keys = ("px", "py", "pz", "vx", "vy", "vz")
             values = [p.get(k, 0.0) for k in keys]
@@ -76,7 +73,7 @@ def main(ctx: ServiceContext) -> int:
                 counters["bad_faults"] += 1
                 ctx.log("warning", f"fault bias {sc}: refused (params {keys} must be finite "
                         f"numbers; got {p})", msg.t)  # fmt: skip
-                continue
+                return
             bias_faults.append((-math.inf, np.array(values, dtype=float), f"from {msg.src}"))
         elif msg.body["sc"] in ("chief", sc):
             slot = pending.setdefault(msg.t, {})
@@ -108,6 +105,23 @@ def main(ctx: ServiceContext) -> int:
             for t in [t for t in pending if t < horizon]:
                 del pending[t]
                 counters["unmatched"] += 1
+
+    while not ctx.stop.is_set():
+        try:
+            _, msg = inbox.get(timeout=0.5)
+        except queue.Empty:
+            if final_t is not None and time.monotonic() - final_seen > END_GRACE:
+                break  # the last truth never came (a lost message): nothing more will
+            continue
+        # what one pass over the queue publishes goes out as one zenoh sample per topic:
+        # the environment's step arrives at once, so a step's samples leave together
+        with ctx.bus.batch():
+            while True:
+                handle(msg)
+                try:
+                    _, msg = inbox.get_nowait()
+                except queue.Empty:
+                    break
         if final_t is not None and last_pair >= final_t - 1e-6:
             break
     ctx.publish_stats(last_t, counters)

@@ -9,10 +9,17 @@ msgpack values: ints, floats, bools, strings, maps with string keys, and (nested
 for arrays. No ext types and no numpy, so any zenoh subscriber in any language decodes a payload
 with a plain msgpack library.
 
+A batch is several messages of one topic in one zenoh sample: a msgpack array of byte strings,
+each one message's payload as above, in publication order (``pack_batch``, ``unpack_batch``).
+A lock-step publisher sends the samples of one flight-software step that way: one zenoh
+sample per topic and step instead of one per message, which is what the bus pays for.
+
 Inputs/outputs:
     encode(schema, body, *, seq, t, src) -> bytes    validates, then packs
     decode(payload, expected=None) -> Message        unpacks (bounded), then validates
     schema_for_topic(topic) -> str | None            the schema a topic carries
+    pack_batch(payloads) -> bytes                    several payloads in one sample
+    unpack_batch(payload) -> list[bytes] | None      a batch's payloads; None: one message
     Both raise MessageError, whose ``reason`` is one of REASONS.
 
 The schema table ``SCHEMAS`` is data: one ``Schema`` per message type, each a mapping of field
@@ -24,6 +31,7 @@ numpy arrays of the declared shape (``None`` = any length). This module has no s
 from __future__ import annotations
 
 import difflib
+import functools
 import math
 import numbers
 from collections.abc import Collection, Mapping
@@ -51,6 +59,9 @@ REASONS = frozenset(
 """Every value ``MessageError.reason`` can take."""
 
 HEADER_KEYS = ("schema", "version", "seq", "t", "src", "body")
+
+MAX_BATCH = 64
+"""Most messages in one batch; a batch's whole payload is also at most ``MAX_PAYLOAD``."""
 
 
 class MessageError(ValueError):
@@ -346,6 +357,7 @@ TOPIC_SCHEMAS: tuple[tuple[str, str], ...] = (
 key chunk, ``**`` the rest of the key."""
 
 
+@functools.lru_cache(maxsize=4096)  # a run has a few dozen topics; garbage may add more
 def schema_for_topic(topic: str) -> str | None:
     """The schema a topic carries (``TOPIC_SCHEMAS``), None for a topic outside the table."""
     chunks = topic.split("/")
@@ -491,3 +503,50 @@ def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Mes
             "bad_header", f"{name} header.body: expected map, got {_type_name(body)}"
         )
     return Message(name, version, seq, t, src, check_body(name, body))
+
+
+def pack_batch(payloads: Collection[bytes]) -> bytes:
+    """Several encoded messages (of one topic, in order) as one payload: a msgpack array of
+    byte strings.  Raises MessageError (``oversized``) past ``MAX_BATCH`` messages or
+    ``MAX_PAYLOAD`` bytes, and ValueError for an empty batch."""
+    if not payloads:
+        raise ValueError("a batch needs at least one message")
+    if len(payloads) > MAX_BATCH:
+        raise MessageError("oversized", f"batch of {len(payloads)} messages exceeds {MAX_BATCH}")
+    packed = msgpack.packb(list(payloads), use_bin_type=True)
+    if len(packed) > MAX_PAYLOAD:
+        raise MessageError("oversized", f"batch of {len(packed)} B exceeds {MAX_PAYLOAD} B")
+    return packed
+
+
+_ARRAY_MARKERS = frozenset(range(0x90, 0xA0)) | {0xDC, 0xDD}  # fixarray, array 16, array 32
+
+
+def unpack_batch(payload: bytes) -> list[bytes] | None:
+    """The messages of a batch payload, in order; None when ``payload`` is not a batch (a
+    single message, or garbage for ``decode`` to name).  Raises MessageError (``oversized``,
+    ``malformed``) for a batch that is too large or not an array of 1 to ``MAX_BATCH`` byte
+    strings.  Each part is still to be ``decode``d: a batch vouches for nothing inside it."""
+    size = len(payload)
+    if size > MAX_PAYLOAD:
+        raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
+    if not size or payload[0] not in _ARRAY_MARKERS:
+        return None
+    try:
+        parts = msgpack.unpackb(
+            payload,
+            raw=False,
+            use_list=True,
+            max_str_len=0,
+            max_bin_len=size,
+            max_array_len=MAX_BATCH,
+            max_map_len=0,
+            max_ext_len=0,
+        )
+    except Exception as exc:  # any unpack failure of untrusted bytes is "malformed"
+        raise MessageError("malformed", f"not a msgpack batch: {exc}") from exc
+    if not parts or not all(type(p) is bytes for p in parts):
+        raise MessageError(
+            "malformed", f"a batch is an array of 1 to {MAX_BATCH} byte strings (messages)"
+        )
+    return parts

@@ -26,7 +26,7 @@ from services.bus import (
 )
 from services.launcher import free_port
 from services.links import LinkModel, LinkRule, LinkSpec
-from services.schema import MAX_PAYLOAD, Message, MessageError, encode
+from services.schema import MAX_BATCH, MAX_PAYLOAD, Message, MessageError, encode, pack_batch
 
 TIMEOUT = 5.0
 _runs = itertools.count()
@@ -162,6 +162,73 @@ def test_garbage_is_rejected_counted_and_subscriber_survives(
             assert after[f"rejected.{reason}"] - before[f"rejected.{reason}"] == 1
         assert after["rejected"] - before["rejected"] == 3
         assert inbox.empty()
+
+
+def test_a_batch_travels_as_one_sample_and_arrives_message_by_message(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """What is published inside ``Bus.batch()`` leaves as one zenoh sample per topic; the
+    receiver decodes, links and delivers each message on its own, in order, with its own seq
+    and time, and a bad message inside a batch is rejected without losing its neighbours."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    samples: queue.Queue[bytes] = queue.Queue()
+    rules = [LinkRule("nav-*", "nav/*/state", LinkSpec(delay=10.0))]
+    key = f"ddvi/{run}/nav/deputy1/state"
+    with Bus(hub, run, "controller", links=rules) as rx, Bus(svc, run, "nav-deputy1") as tx:
+        probe: Inbox = queue.Queue()
+        rx.subscribe("probe", queue_handler(probe))
+        rx.subscribe("nav/*/state", queue_handler(inbox), expected_schema="nav")
+        raw = hub.declare_subscriber(key, lambda s: samples.put(s.payload.to_bytes()))
+        connect(tx, probe, "probe")
+        before = rx.counters
+        with tx.batch():
+            seqs = [
+                tx.publish("nav/deputy1/state", "nav", nav_body(k), 100.0 + k) for k in range(3)
+            ]
+            assert samples.empty() and inbox.empty()  # nothing leaves inside the block
+        assert samples.get(timeout=TIMEOUT)[0] == 0x93  # one sample: an array of 3 payloads
+        assert wait_until(lambda: rx.counters["delayed"] - before["delayed"] == 3)
+        assert rx.pump(sim_time=110.0) == 1  # each message has its own due time on the link
+        assert rx.pump(sim_time=112.0) == 2
+        got = [inbox.get_nowait()[1] for _ in range(3)]
+        assert [m.seq for m in got] == seqs and [m.t for m in got] == [100.0, 101.0, 102.0]
+        assert tx.counters["sent"] - before["sent"] >= 3
+        # a batch with garbage inside: each bad message is rejected, the good one delivered
+        good = encode("nav", nav_body(7.0), seq=10**6, t=200.0, src="nav-deputy1")
+        cmd = {"sc": "deputy1", "sigma": [0.0, 0.0, 0.1], "for_t": 0.0}
+        wrong = encode("cmd", cmd, seq=0, t=0.0, src="intruder")
+        svc.put(key, pack_batch([b"\xc1 not msgpack", wrong, good]))
+        svc.put(key, b"\x92\xc4\x01a\x01")  # an array, but not of byte strings
+        assert wait_until(lambda: rx.counters["rejected"] - before["rejected"] == 3)
+        assert rx.pump(sim_time=210.0) == 1
+        assert inbox.get_nowait()[1].seq == 10**6
+        after = rx.counters
+        assert after["rejected.malformed"] - before["rejected.malformed"] == 2
+        assert after["rejected.wrong_schema"] - before["rejected.wrong_schema"] == 1
+        raw.undeclare()
+
+
+def test_batches_stay_within_their_bounds(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """More than MAX_BATCH messages of a topic in one block leave as several batches, all
+    delivered; a lone message leaves as itself."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    with Bus(hub, run, "controller") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("nav/*/state", queue_handler(inbox), expected_schema="nav")
+        connect(tx, inbox, "nav/deputy1/state")
+        n = 2 * MAX_BATCH + 5
+        with tx.batch():
+            for k in range(n):
+                tx.publish("nav/deputy1/state", "nav", nav_body(k), float(k))
+        got = [inbox.get(timeout=TIMEOUT)[1].t for _ in range(n)]
+        assert got == [float(k) for k in range(n)]
+    with pytest.raises(ValueError, match="at least one"):
+        pack_batch([])
+    with pytest.raises(MessageError, match="exceeds"):
+        pack_batch([b"x"] * (MAX_BATCH + 1))
 
 
 def test_handler_errors_are_contained(

@@ -69,9 +69,14 @@ def test_short_mission_end_to_end(tmp_path: Path) -> None:
     assert 20_000 < lqr["final_along_track_error_m"] < 40_000
     totals = summary["messages"]["totals"]
     assert totals["rejected"] == 0 and totals["late"] == 0 and totals["dropped"] == 0
-    # 1.5 orbits of 10 s samples: truth for 3 craft, exo and clock at each, all recorded
-    samples = int(1.5 * 5431.18 / 60) * 6 + 1
-    assert summary["messages"]["recorded"] >= 5 * samples
+    # 1.5 orbits of 10 s samples: truth for 3 craft and exo at each, a clock at each 60 s
+    # step, all recorded message by message (the environment sends a step's as batches)
+    steps = int(1.5 * 5431.18 / 60)
+    samples = steps * 6 + 1
+    assert summary["messages"]["by_schema"]["truth"] == 3 * samples
+    assert summary["messages"]["by_schema"]["exo"] == samples
+    assert summary["messages"]["by_schema"]["clock"] == steps + 1
+    assert summary["messages"]["recorded"] >= 4 * samples + steps
     recorded, complete = read_recording(out / "recording.mcap")
     assert complete and len(recorded) == summary["messages"]["recorded"]
     # every topic the services use carries the schema the topic table says it does

@@ -409,15 +409,30 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
                     bus.publish("nav/alpha/state", "nav", body, 12.5) >= 0 and not received.empty()
                 )
             )
+            time.sleep(0.05)
+            first = received.get_nowait()
+            received.queue.clear()
+            received.put(first)
+            with bus.batch():
+                for t in (20.0, 30.0, 40.0):
+                    bus.publish("nav/alpha/state", "nav", body, t)
+            assert wait_until(lambda: received.qsize() == 2)
         sub.undeclare()
     finally:
         client.close()
     key, payload = received.get_nowait()
+    batches = [received.get_nowait()[1]]
     msg = msgpack.unpackb(payload)
     assert key == f"ddvi/{run}/nav/alpha/state"
     assert set(msg) == {"schema", "version", "seq", "t", "src", "body"}
     assert (msg["schema"], msg["t"], msg["src"]) == ("nav", 12.5, "nav-alpha")
     assert msg["body"] == body
+    # a batch (one step's messages of a topic in one sample) is a msgpack array of payloads
+    (batch,) = batches
+    parts = msgpack.unpackb(batch)
+    assert isinstance(parts, list) and len(parts) == 3
+    assert [msgpack.unpackb(p)["t"] for p in parts] == [20.0, 30.0, 40.0]
+    assert all(msgpack.unpackb(p)["body"] == body for p in parts)
 
 
 # ---- ddvi monitor and helpers ---------------------------------------------------------------
@@ -443,7 +458,7 @@ def test_monitor_command_prints_one_line_per_message(
     thread.join(TIMEOUT)
     assert result == [0] and len(lines) == 3
     assert any(f"ddvi/{run}/clock clock t=10.000 src=environment" in ln for ln in lines)
-    assert "REJECTED malformed" in format_sample("k", b"\x00\x01")
+    assert "REJECTED malformed" in format_sample("k", b"\x00\x01")[0]
 
 
 def test_hill_states_match_rv_to_hill() -> None:
