@@ -105,10 +105,11 @@ command_deadline = 20.0
 [[deputy]]
 name = "lqr"
 controller = "lqr"
-[[link]]                # navigation to controller: one flight-software period late
-publisher = "nav-*"
+[[link]]                # navigation to controller: one flight-software period late, and
+publisher = "nav-*"     # a fifth of the samples arrive twice
 subscriber = "ctrl-*"
 delay = 60.0
+duplicate = 0.2
 [[link]]                # controller to environment: another period, and a lossy link
 publisher = "ctrl-*"
 subscriber = "environment"
@@ -122,7 +123,7 @@ loss = 0.3
 def test_link_delay_and_loss_from_the_deployment(tmp_path: Path) -> None:
     """Delays shift the control loop by whole steps without a late command; each command the
     link drops leaves the previous one in force, counted once as dropped and once as
-    missing."""
+    missing; each sample the link duplicates is refused once as a duplicate."""
     dep = tmp_path / "links.toml"
     dep.write_text(DELAYED)
     r = subprocess.run(
@@ -141,9 +142,17 @@ def test_link_delay_and_loss_from_the_deployment(tmp_path: Path) -> None:
     steps = env["steps"]
     nav = summary["messages"]["services"]["nav-lqr"]
     assert nav["published"] == steps * 6 + 1 and nav["unmatched"] == 0
-    # every navigation sample held by its link (the last ones still in flight at the end)
-    assert nav["published"] - 7 <= ctrl["delayed"] <= nav["published"]
+    # every navigation sample held by its link, each copy counted (the last ones still in
+    # flight at the end)
+    held = ctrl["delayed"] - ctrl["duplicated"]
+    assert nav["published"] - 7 <= held <= nav["published"]
     assert ctrl["dropped"] == 0
+    # a duplicated sample is delivered once: its copy is refused as a duplicate (the copies
+    # of the last samples, still held by the link at the end, are never delivered)
+    assert 0.1 * nav["published"] < ctrl["duplicated"] < 0.3 * nav["published"]
+    assert ctrl["duplicated"] - 7 <= ctrl["rejected.duplicate"] <= ctrl["duplicated"]
+    assert ctrl["rejected"] == ctrl["rejected.duplicate"]
+    assert summary["messages"]["totals"]["duplicated"] == ctrl["duplicated"]
     assert 0.15 * steps < env["dropped"] < 0.45 * steps  # 30 % of about 90 commands
     # a dropped command is missing at the step it was for (those for the last two steps,
     # beyond the end of the mission at 60 s delay, are not)
