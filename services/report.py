@@ -409,6 +409,10 @@ def write_csv(path: Path, data: RunData, series: list[DeputySeries]) -> int:
     return len(rows)
 
 
+# fixed margins: a layout engine (tight or constrained) costs about as much as drawing
+MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.11, "top": 0.92}
+
+
 def write_figures(out: Path, data: RunData, series: list[DeputySeries]) -> list[str]:
     """Write the PNG figures; return their file names."""
     import matplotlib
@@ -421,7 +425,6 @@ def write_figures(out: Path, data: RunData, series: list[DeputySeries]) -> list[
     written: list[str] = []
 
     def save(fig: Any, name: str) -> None:
-        fig.tight_layout()
         fig.savefig(out / name, dpi=110)
         plt.close(fig)
         written.append(name)
@@ -429,7 +432,9 @@ def write_figures(out: Path, data: RunData, series: list[DeputySeries]) -> list[
     def line_plot(
         name: str, ylabel: str, get: Any, log: bool = False, refs: bool = False, steps: bool = False
     ) -> None:
-        fig, ax = plt.subplots(figsize=(8, 4.5))
+        # room for log labels like 3.075x10^4 (a span under a decade)
+        margins = {**MARGINS, "left": 0.16} if log else MARGINS
+        fig, ax = plt.subplots(figsize=(8, 4.5), gridspec_kw=margins)
         for j, s in enumerate(series):
             t, y = get(s)
             if len(t):
@@ -463,7 +468,7 @@ def write_figures(out: Path, data: RunData, series: list[DeputySeries]) -> list[
 
     line_plot("along_track_error.png", "|y - y_ref| [m]", ey, log=True)
 
-    fig, ax = plt.subplots(figsize=(6, 6))
+    fig, ax = plt.subplots(figsize=(6, 6), gridspec_kw=MARGINS)
     for j, s in enumerate(series):
         if len(s.t):
             ax.plot(s.hill[:, 1], s.hill[:, 0], color=colors[j % len(colors)], lw=1.0,
@@ -477,7 +482,9 @@ def write_figures(out: Path, data: RunData, series: list[DeputySeries]) -> list[
         ax.legend(loc="best", fontsize="small")
     save(fig, "hill_xy.png")
 
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
+    fig, axes = plt.subplots(
+        2, 2, figsize=(10, 6.5), sharex=True, gridspec_kw={**MARGINS, "top": 0.89, "hspace": 0.25}
+    )
     learners = [(j, s) for j, s in enumerate(series) if s.deputy.controller == "ddvi"]
     for c, ax in enumerate(axes.flat):
         for j, s in learners:
