@@ -8,7 +8,12 @@ Outputs: cmd/<deputy>/att (cmd) every flight-software step; ctrl/<deputy>/gains 
 Modes: ``lqr`` flies u = -K x + L v with gains from the nominal linear model.  ``ddvi`` flies
 u = -K0 x + eta(t) (K0 need not stabilise; eta a multi-sine inside the attitude limit), feeds
 every navigation sample to ddvi_core's IntervalCollector, runs data-driven value iteration at
-the configured time and switches to the learned K, L.  Every command goes through
+the configured time and switches to the learned K, L.  With ``learning.relearn`` it then
+watches its own data for a change of the plant (an actuator fault: ddvi_core.detection's
+one-step predictor, fitted on the data it learned from, and the one-orbit mean of its
+input-equivalent residual against the bound it states in its log); on a detection it explores
+again on K0 (phase "relearning"), learns again from the data since the detection, switches to
+the new gains and re-arms the detector.  Every command goes through
 ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its nav message), which
 makes the facet's drag linear in u and the same at every altitude.  The learner gets
 what a flight computer knows: Q, R, the output map and reference (C, F), the exosystem E and
@@ -39,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ddvi_core.constants import R_EARTH
+from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.models import drag_allocation
 from ddvi_core.simulate import Exploration
@@ -110,6 +116,14 @@ class Controller:
         self.rank = self.rank_needed = 0
         self.collect_from = 0.0  # samples before this are not the learner's (see rejoin)
         self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
+        self.learn_attempts = 0
+        # change detection (learning.relearn): the samples the learner collects (t, x, u, v),
+        # for the predictor the detector fits when it learns; the detector once armed
+        self.learning_samples: collections.deque = collections.deque()
+        self.detector: ChangeDetector | None = None
+        self.detections = 0
+        self.relearn_since: float | None = None  # data for re-learning start here
+        self.learned_at: list[float] = []  # every switch to learned gains (s)
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -139,7 +153,7 @@ class Controller:
         exostate v; ``u_applied`` is the linear-model input it realises (what the learner
         records)."""
         u = float((-self.K @ x + self.L @ v)[0])
-        if self.phase == "exploring":
+        if self.exploring:
             u += float(self.exploration(t, 1)[0])
         # schedule on the measured altitude: the drag the linear model's u stands for is the
         # same at every altitude, so the learner sees one B (and the LQR its design B)
@@ -159,15 +173,49 @@ class Controller:
         outcome.rejected = self.collect(t, x, v)
         return outcome
 
+    @property
+    def exploring(self) -> bool:
+        """Exploring and collecting for the learner: before the first learning (on K0) or
+        re-learning after a detected change (on the learned gains)."""
+        return self.phase in ("exploring", "relearning")
+
     def tick(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:
         """A flight-software step at t with the newest navigation sample (x (4,), exostate v,
-        altitude), measured at t or earlier: learn if it is time to (returns the log line),
-        then compute the command in force from t on (``self.u``)."""
+        altitude), measured at t or earlier: learn if it is time to, or start re-learning if
+        the detector has seen the plant change (returns the log line), then compute the
+        command in force from t on (``self.u``)."""
         learn_log = None
-        if self.phase == "exploring" and t >= self.next_attempt - 1e-6:
+        if self.exploring and t >= self.next_attempt - 1e-6:
             learn_log = self.learn(t)
+        elif self.phase == "learned" and self.detector is not None and self.detector.alarm:
+            learn_log = self.start_relearning(t)
         self.command(t, x, v, altitude)
         return learn_log
+
+    def start_relearning(self, t: float) -> str:
+        """The detector has seen the plant change at step t: explore again on K0, the
+        drift-nulling gain the first learning explored on, with the data from
+        ``relearn_settle_orbits`` later on only, and learn again ``relearn_window_orbits`` after
+        that.  Not on the learned gains: mid-approach they hold the command at one attitude
+        limit or the other, which clips the exploration away (measured: data from the approach
+        gave |K - K*|/|K*| = 2.3, and holding the slot with the learned gains swings the
+        lightly damped loop through the limits for orbits).  Returns the log line."""
+        det, lrn = self.detector, self.deputy.learning
+        self.detections += 1
+        self.phase, self.converged, self.detector = "relearning", False, None
+        self.K, self.L = np.array([lrn.K0], dtype=float), np.zeros((1, self.problem.q))
+        self.collector.reset()
+        self.learning_samples.clear()
+        period = orbit_period(self.dep)
+        self.relearn_since = self.collect_from = t + lrn.relearn_settle_orbits * period
+        self.next_attempt = self.relearn_since + lrn.relearn_window_orbits * period
+        return (
+            f"fault detector: at t = {t:.0f} s the {lrn.detector_window_orbits:g}-orbit mean "
+            f"input-equivalent prediction residual {det.mean[0]:+.4g} left the bound "
+            f"+-{det.bound[0]:.4g} ({det.statistic:.2f} x the bound): the plant has changed; "
+            f"exploring again on K0, re-learning at t = {self.next_attempt:.0f} s from the data "
+            f"from t = {self.relearn_since:.0f} s on"
+        )
 
     def input_at(self, t: float) -> float:
         """The linear-model input this controller had in force at time t: that of its newest
@@ -187,24 +235,64 @@ class Controller:
 
     def collect(self, t: float, x: np.ndarray, v: np.ndarray) -> str | None:
         """While exploring, feed the collector the sample with the input acting on the plant
-        from t on (``input_acting``); returns why the collector refused it, if it did."""
-        if self.phase != "exploring" or t < self.collect_from - 1e-6:
+        from t on (``input_acting``); returns why the collector refused it, if it did.  Once
+        learned, feed the change detector (if armed) instead."""
+        if self.phase == "learned" and self.detector is not None:
+            self.detector.add(t, x, [self.input_acting(t)], v)
             return None
+        if not self.exploring or t < self.collect_from - 1e-6:
+            return None
+        u = self.input_acting(t)
         try:
-            self.collector.add(t, x, [self.input_acting(t)], v)
+            self.collector.add(t, x, [u], v)
         except LearningError as exc:
             return f"sample at t = {t} rejected: {exc}"
+        if self.deputy.learning.relearn:
+            self.learning_samples.append((t, np.array(x, dtype=float), u, np.array(v, dtype=float)))
         return None
+
+    def arm_detector(self, since: float) -> str:
+        """Fit the one-step predictor on the samples the learner just learned from (those at
+        or after ``since``) and watch it from now on; returns the bound it states."""
+        lrn = self.deputy.learning
+        samples = [s for s in self.learning_samples if s[0] >= since - 1e-6]
+        try:
+            predictor = fit_predictor(
+                [s[0] for s in samples],
+                np.reshape([s[1] for s in samples], (len(samples), 4)),
+                [s[2] for s in samples],
+                np.reshape([s[3] for s in samples], (len(samples), self.problem.q)),
+                step=self.deputy.navigation.period,
+                translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
+            )
+            window = lrn.detector_window_orbits * orbit_period(self.dep)
+            self.detector = ChangeDetector(predictor, lrn.detector_bound, window)
+        except DetectionError as exc:
+            self.detector = None
+            return f"; fault detector NOT armed (no re-learning): {exc}"
+        finally:
+            self.learning_samples.clear()
+        return (
+            f"; fault detector: bound = +-{self.detector.bound[0]:.4g} on the "
+            f"{lrn.detector_window_orbits:g}-orbit mean input-equivalent one-step prediction "
+            f"residual ({lrn.detector_bound:g} x its RMS {predictor.input_rms[0]:.3g} on the "
+            f"{predictor.pairs} sample pairs learned from; one-step residual RMS "
+            f"{np.array2string(predictor.residual_rms, precision=3)})"
+        )
 
     def learn(self, t: float) -> str:
         """Run data-driven value iteration on the data so far; switch gains on success."""
         lrn, pr = self.deputy.learning, self.problem
         n = self.n_rate
         t0 = time.perf_counter()
+        self.learn_attempts += 1
+        since = -math.inf
+        if self.relearn_since is not None:  # re-learning: every sample since the detection
+            since = self.relearn_since
+        elif lrn.window_orbits > 0:
+            since = t - lrn.window_orbits * orbit_period(self.dep)
         try:
-            data = self.collector.data()
-            if lrn.window_orbits > 0:
-                data = data.since(t - lrn.window_orbits * orbit_period(self.dep))
+            data = self.collector.data().since(since)
             r = learn_from_data(
                 data,
                 pr.Q,
@@ -229,18 +317,22 @@ class Controller:
             return f"learning at t = {t:.0f} s did not converge ({r.message}), exploring on"
         self.K, self.L = r.K, r.L
         self.result = r
+        relearned = self.relearn_since is not None
         self.phase, self.source = "learned", "ddvi"
         self.iteration, self.converged = r.iterations, True
+        self.relearn_since = None
+        self.learned_at.append(t)
         self.learn_info = {
             "wall_s": time.perf_counter() - t0,
             "condition": r.condition,
             "residual": r.residual,
             "intervals": r.intervals,
         }
+        armed = self.arm_detector(since) if lrn.relearn else ""
         return (
-            f"learned at t = {t:.0f} s from {r.intervals} intervals in {r.iterations} "
-            f"iterations ({self.learn_info['wall_s']:.2f} s): K = {r.K.ravel().tolist()}, "
-            f"L = {r.L.ravel().tolist()}"
+            f"{'re-learned' if relearned else 'learned'} at t = {t:.0f} s from {r.intervals} "
+            f"intervals in {r.iterations} iterations ({self.learn_info['wall_s']:.2f} s): "
+            f"K = {r.K.ravel().tolist()}, L = {r.L.ravel().tolist()}{armed}"
         )
 
 
@@ -284,7 +376,7 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
     last: tuple[float, np.ndarray, np.ndarray, float] | None = None  # newest collected sample
     # collected samples a step may still fly on (up to its delay behind it)
     recent: collections.deque = collections.deque(maxlen=math.ceil(delay / nav_period) + 8)
-    counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0}
+    counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0, "fault_detections": 0}
     clock = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}  # time reached, seen up to
     steps = 0
     # a restarted controller flies from the first step it has a sample for (set below)
@@ -357,7 +449,8 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
             _, x, v, altitude = newest
             learn_log = ctrl.tick(T, x, v, altitude)
         if learn_log is not None:
-            counters["learn_attempts"] += 1
+            counters["learn_attempts"] = ctrl.learn_attempts
+            counters["fault_detections"] = ctrl.detections
             ctx.log("info", learn_log, T)
             publish_gains(T)
         ctx.bus.publish(
@@ -365,7 +458,7 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
         )
         counters["commands"] += 1
         steps += 1
-        if ctrl.phase == "exploring":
+        if ctrl.exploring:
             publish_gains(T)  # beaconed during learning
         if steps % run.status_every == 0:
             publish_status(T)

@@ -132,6 +132,12 @@ class Learning:
     tol: float = 1e-6
     max_iterations: int = 200_000
     seed: int = 1
+    # after learning, watch the plant for a change (an actuator fault) and learn again
+    relearn: bool = False
+    relearn_settle_orbits: float = 2.0  # after a detection, K0 stops the approach: not data
+    relearn_window_orbits: float = 6.0  # then explore this long and re-learn from it
+    detector_bound: float = 100.0  # x the input-equivalent residual's RMS on the learning data
+    detector_window_orbits: float = 1.0  # the residual's mean is taken over this window
 
 
 @dataclass(frozen=True)
@@ -432,6 +438,10 @@ def validate(dep: Deployment) -> None:
             )
         if not (math.isfinite(lrn.window_orbits) and lrn.window_orbits >= 0):
             raise DeploymentError(f"{w}.learning.window_orbits: must be >= 0 (0 = all data)")
+        for key in ("relearn_window_orbits", "detector_bound", "detector_window_orbits"):
+            _positive(f"{w}.learning.{key}", getattr(lrn, key))
+        if lrn.relearn_settle_orbits < 0:
+            raise DeploymentError(f"{w}.learning.relearn_settle_orbits: must be >= 0")
         if len(lrn.K0) != 4:
             raise DeploymentError(f"{w}.learning.K0: expected 4 values (gain on x, y, xdot, ydot)")
         if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):

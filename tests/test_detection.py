@@ -1,0 +1,131 @@
+"""Change detection from the controller's own data (ddvi_core.detection) and re-learning."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
+from services.deployment import DeploymentError, deployment_from_table, read_table
+from services.inprocess import run_in_process
+from services.mission import orbit_period
+
+STEP = 10.0
+
+
+def _plant(gain: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A lightly damped oscillator with a constant disturbance, zero-order hold over STEP:
+    Phi (2,2), Gamma (2,1) scaled by ``gain`` (an actuator fault), Psi (2,1) on v = [1]."""
+    A = np.array([[0.0, 1.0], [-1e-4, -1e-3]])
+    B = np.array([[0.0], [1e-3]])
+    D = np.array([[0.0], [2e-5]])
+    M = scipy.linalg.expm(np.block([[A, np.hstack([B, D])], [np.zeros((2, 4))]]) * STEP)
+    return M[:2, :2], gain * M[:2, 2:3], M[:2, 3:4]
+
+
+def _samples(k: int, gain: float = 1.0, seed: int = 0, u_scale: float = 1.0):
+    Phi, Gamma, Psi = _plant(gain)
+    rng = np.random.default_rng(seed)
+    t = STEP * np.arange(k)
+    u = u_scale * rng.normal(0, 1, (k, 1))
+    v = np.ones((k, 1))
+    x = np.zeros((k, 2))
+    for i in range(k - 1):
+        x[i + 1] = Phi @ x[i] + Gamma @ u[i] + Psi @ v[i] + rng.normal(0, 1e-6, 2)
+    return t, x, u, v
+
+
+def _watch(detector: ChangeDetector, t, x, u, v) -> list[float]:
+    """The times at which the detector is in alarm."""
+    return [ti for ti, xi, ui, vi in zip(t, x, u, v, strict=True) if detector.add(ti, xi, ui, vi)]
+
+
+def test_predictor_recovers_the_plant_and_states_its_residual() -> None:
+    t, x, u, v = _samples(2000)
+    pred = fit_predictor(t, x, u, v, step=STEP)
+    Phi, Gamma, _ = _plant()
+    assert np.allclose(pred.gamma, Gamma, rtol=1e-2, atol=1e-9)
+    assert np.allclose(np.eye(2) + pred.coef[:2].T, Phi, atol=1e-4)
+    assert pred.pairs == 1999 and np.all(pred.residual_rms < 3e-6)
+    assert 0 < pred.input_rms[0] < 0.05
+
+
+def test_detector_alarms_on_an_input_change_and_not_on_the_same_plant() -> None:
+    pred = fit_predictor(*_samples(2000), step=STEP)
+    window = 200 * STEP
+    same = ChangeDetector(pred, bound_factor=5.0, window=window)
+    assert _watch(same, *_samples(3000, seed=1)) == []
+    assert 0 < same.statistic < 1.0
+    # the same plant whose input acts at 0.8x: an actuator fault
+    faulted = ChangeDetector(pred, bound_factor=5.0, window=window)
+    t, x, u, v = _samples(3000, gain=0.8, seed=1, u_scale=1.0)
+    alarms = _watch(faulted, t, x, u + 0.5, v)  # a command offset: the fault shows in its mean
+    assert alarms and alarms[0] <= t[0] + 1.2 * window
+    assert faulted.statistic > 3.0
+
+
+def test_detector_skips_pairs_across_a_gap() -> None:
+    pred = fit_predictor(*_samples(500), step=STEP)
+    det = ChangeDetector(pred, bound_factor=5.0, window=50 * STEP)
+    t, x, u, v = _samples(200, seed=2)
+    det.add(t[0], x[0], u[0], v[0])
+    det.add(t[1] + 5.0, x[1], u[1], v[1])  # off the step: no pair, nothing enters the window
+    assert len(det._pairs) == 0
+
+
+def test_predictor_data_errors_say_what_is_missing() -> None:
+    t, x, u, v = _samples(2000)
+    with pytest.raises(DetectionError, match="too few sample pairs"):
+        fit_predictor(t[:5], x[:5], u[:5], v[:5], step=STEP)
+    with pytest.raises(DetectionError, match="not all excited"):
+        fit_predictor(t, x, np.zeros_like(u), v, step=STEP)  # no exploration: u = 0
+    with pytest.raises(DetectionError, match="share their length"):
+        fit_predictor(t, x[:-1], u, v)
+    with pytest.raises(DetectionError, match="non-finite"):
+        fit_predictor(t, np.where(x == x[3, 0], np.nan, x), u, v)
+    with pytest.raises(DetectionError, match="increase"):
+        fit_predictor(t[::-1], x, u, v)
+    with pytest.raises(DetectionError, match="translation"):
+        fit_predictor(t, x, u, v, translation=[0.0, 0.0])
+    pred = fit_predictor(t, x, u, v, step=STEP)
+    with pytest.raises(DetectionError, match="bound_factor"):
+        ChangeDetector(pred, bound_factor=0.0, window=100.0)
+    with pytest.raises(DetectionError, match="window"):
+        ChangeDetector(pred, bound_factor=1.0, window=1.0)
+
+
+def test_relearn_keys_are_checked() -> None:
+    table = read_table("panel-fault")
+    table["deputy"][1]["learning"]["relearn_windw_orbits"] = 3.0
+    with pytest.raises(DeploymentError, match="did you mean 'relearn_window_orbits'"):
+        deployment_from_table(table)
+    table = read_table("panel-fault")
+    table["deputy"][1]["learning"]["detector_bound"] = -1.0
+    with pytest.raises(DeploymentError, match="detector_bound: must be positive"):
+        deployment_from_table(table)
+
+
+def test_panel_fault_is_detected_from_the_deputys_own_data() -> None:
+    """deployments/panel-fault.toml in one process, cut after orbit 24, with a second DDVI
+    deputy whose panel stays whole: both learn at orbit 15 and arm the detector; the faulted
+    one detects its 0.8x panel within an orbit of orbit 21 (not before) and explores again;
+    the whole one, through the approach's hardest part (orbits 15 to 24), never alarms."""
+    table = read_table("panel-fault")
+    table["run"]["orbits"] = 24.0
+    whole = dict(table["deputy"][1], name="whole")
+    table["deputy"].append(whole)
+    table["fault"] = [f for f in table["fault"] if f["deputy"] == "ddvi"]
+    dep = deployment_from_table(table)
+    period = orbit_period(dep)
+    out = run_in_process(dep)
+    for name in ("ddvi", "whole"):
+        assert out[name]["controller"].learned_at[0] == pytest.approx(15 * period, abs=60)
+        assert "fault detector: bound = +-" in out[name]["log"][0]
+    faulted, intact = out["ddvi"]["controller"], out["whole"]["controller"]
+    assert intact.detections == 0 and intact.phase == "learned"
+    assert intact.detector is not None and intact.detector.statistic < 0.6
+    assert faulted.detections == 1 and faulted.phase == "relearning"
+    detected = faulted.relearn_since - dep.deputy[1].learning.relearn_settle_orbits * period
+    assert 21 * period < detected < 22 * period
+    assert "left the bound" in out["ddvi"]["log"][1]
