@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -326,9 +327,17 @@ def test_killed_services_are_restarted_and_the_mission_completes(
     end = summary["sim_time_s"]
     for sc, times in cmds.items():
         assert times[-1] >= end - 60.0, sc  # both controllers fly to the end
-    # the restarted controller's commands come from a new process, after a gap
-    gaps = np.diff(cmds["ddvi"])
-    assert gaps.max() > 60.0 and cmds["ddvi"][int(np.argmax(gaps)) + 1] > killed_at
+    # the restarted controller's commands come from a new process (its seq starts again at 0)
+    # from a step after the kill; whether a step went without one depends on where in the step
+    # the kill fell, so no gap is required, but no step is commanded twice
+    ddvi = sorted(
+        (r.data["body"]["for_t"], r.data["seq"]) for r in recorded
+        if r.schema == "ddvi.cmd" and r.data["src"] == "ctrl-ddvi"
+    )  # fmt: skip
+    assert len({t for t, _ in ddvi}) == len(ddvi)
+    restarts = [t for (_, s0), (t, s1) in itertools.pairwise(ddvi) if s1 < s0]
+    assert len(restarts) == 1 and restarts[0] > killed_at
+    assert min(np.diff(cmds["ddvi"])) >= 60.0 - 1e-6
 
 
 @pytest.mark.integration
