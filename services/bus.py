@@ -446,12 +446,9 @@ class Bus:
         goes through ``_on_message`` as if it had come alone."""
         try:
             key = str(sample.key_expr)
+            payload = sample.payload.to_bytes()
             try:
-                size = len(sample.payload)
-                if size > MAX_PAYLOAD:
-                    raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
-                payload = sample.payload.to_bytes()
-                parts = unpack_batch(payload)
+                parts = unpack_batch(payload)  # also refuses an oversized payload
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
                 return

@@ -175,8 +175,8 @@ class Controller:
 
     @property
     def exploring(self) -> bool:
-        """Exploring and collecting for the learner: before the first learning (on K0) or
-        re-learning after a detected change (on the learned gains)."""
+        """Exploring and collecting for the learner: before the first learning or, after a
+        detected change, before re-learning (both on K0)."""
         return self.phase in ("exploring", "relearning")
 
     def tick(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:

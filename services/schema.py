@@ -453,14 +453,20 @@ def encode(schema: str, body: Mapping[str, Any], *, seq: int, t: float, src: str
     return payload
 
 
+def _checked_size(payload: bytes) -> int:
+    """len(payload); MessageError ``oversized`` past MAX_PAYLOAD (checked before unpacking)."""
+    size = len(payload)
+    if size > MAX_PAYLOAD:
+        raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
+    return size
+
+
 def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Message:
     """Unpack and validate a payload; ``expected`` restricts the accepted schema name(s).
 
     Never raises anything but MessageError for any input bytes.
     """
-    size = len(payload)
-    if size > MAX_PAYLOAD:
-        raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
+    size = _checked_size(payload)
     try:
         raw = msgpack.unpackb(
             payload,
@@ -530,9 +536,7 @@ def unpack_batch(payload: bytes) -> list[bytes] | None:
     single message, or garbage for ``decode`` to name).  Raises MessageError (``oversized``,
     ``malformed``) for a batch that is too large or not an array of 1 to ``MAX_BATCH`` byte
     strings.  Each part is still to be ``decode``d: a batch vouches for nothing inside it."""
-    size = len(payload)
-    if size > MAX_PAYLOAD:
-        raise MessageError("oversized", f"payload of {size} B exceeds {MAX_PAYLOAD} B")
+    size = _checked_size(payload)
     if not size or payload[0] not in _ARRAY_MARKERS:
         return None
     try:
