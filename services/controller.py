@@ -336,6 +336,9 @@ class Controller:
         )
 
 
+NAV_AWAY_GRACE = 1.0
+"""Wall seconds after navigation's token goes before steps fly without its samples: a token's
+undeclaration can overtake the samples the service put just before it left."""
 _SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
 _PRESENCE = "presence"  # inbox tag: the navigation service came or went
 
@@ -381,9 +384,9 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
     steps = 0
     # a restarted controller flies from the first step it has a sample for (set below)
     next_tick = math.inf if ctx.joining else 0.0
-    # while navigation is away (its token gone, until its next sample), steps fly on the
-    # newest sample there is instead of waiting for one that will not come
-    nav_present = True
+    # while navigation is away (its token gone NAV_AWAY_GRACE ago, until its next sample),
+    # steps fly on the newest sample there is instead of waiting for one that will not come
+    nav_gone: float | None = None  # when its token went (monotonic s)
     final_t: float | None = None
     final_seen = 0.0
 
@@ -424,6 +427,9 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
         """The newest sample the step at T can have (negative: none yet)."""
         return math.floor((T - delay) / nav_period + 1e-9) * nav_period
 
+    def nav_away() -> bool:
+        return nav_gone is not None and time.monotonic() - nav_gone >= NAV_AWAY_GRACE
+
     def tick_ready(T: float) -> bool:
         """The clock has reached T and the sample the step flies on is accounted for
         (delivered, or held or lost by its link)."""
@@ -432,7 +438,7 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
         want = expected_sample(T)
         return clock["now"] >= T - 1e-6 and (
             want < -1e-6
-            or ((clock["nav"] >= want - 1e-6 or not nav_present) and clock["exo"] >= want - 1e-6)
+            or ((clock["nav"] >= want - 1e-6 or nav_away()) and clock["exo"] >= want - 1e-6)
         )
 
     def tick(T: float) -> None:
@@ -502,17 +508,22 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
         publish_gains(0.0)
     while not ctx.stop.is_set():
         try:
-            kind, msg = inbox.get(timeout=0.5)
+            kind, msg = inbox.get(timeout=0.5 if nav_gone is None else 0.1)
         except queue.Empty:
             if final_t is not None and time.monotonic() - final_seen > END_GRACE:
                 break  # the last samples were lost on their links
+            advance()  # a step may wait for navigation's grace to run out
+            if done():
+                break
             continue
         if kind == _PRESENCE:
-            nav_present = nav_present and msg  # back: once it publishes again
+            if not msg and nav_gone is None:
+                nav_gone = time.monotonic()  # back: once it publishes again
         elif kind == _SEEN:
             key = "nav" if msg.schema == "nav" else "exo"
             clock[key] = max(clock[key], msg.t)
-            nav_present = nav_present or key == "nav"
+            if key == "nav":
+                nav_gone = None
         elif msg.schema == "clock":
             clock["now"] = max(clock["now"], msg.t)
             ctx.bus.pump(msg.t)  # release what the links held until now

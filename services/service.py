@@ -23,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
 
-from services.bus import Bus, BusSettings, open_session
+from services.bus import Bus, BusSettings, open_session, wait_for_alive
 from services.deployment import Deployment, DeploymentError, load_deployment
 from services.links import LINK_PARAMETERS, LinkRule, LinkSpec, impairs_truth
 from services.schema import Message
@@ -32,6 +32,10 @@ log = logging.getLogger("ddvi")
 
 END_GRACE = 2.0
 """Wall seconds a service waits, after the final clock, for a message its link may have lost."""
+
+MONITOR_WAIT = 10.0
+"""Wall seconds a service waits at start-up to see the monitor, so that what it publishes first
+is recorded: a message put before this session knows the monitor's subscription goes nowhere."""
 
 
 @dataclass
@@ -139,6 +143,13 @@ def run_service(
         )
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
+            # the monitor subscribed before its token: seeing the token, this session knows
+            # the subscription (the launcher starts the monitor first: this is quick)
+            if args.name != "monitor" and not wait_for_alive(
+                session, args.run, ["monitor"], MONITOR_WAIT
+            ):
+                log.warning("the monitor is not seen after %g s: what this service publishes "
+                            "before it is may not be recorded", MONITOR_WAIT)  # fmt: skip
             bus.subscribe("fault/link", ctx.on_link_fault, expected_schema="fault")
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready

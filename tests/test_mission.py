@@ -83,6 +83,15 @@ def test_short_mission_end_to_end(tmp_path: Path) -> None:
     data = [r for r in recorded if not r.topic.startswith(("alive/", "rejected/"))]
     assert {r.schema for r in data} >= {"ddvi.truth", "ddvi.nav", "ddvi.cmd", "ddvi.gains"}
     assert all(r.schema == f"ddvi.{schema_for_topic(r.topic)}" for r in data)
+    # nothing published was missed, the first message of each service included (a service
+    # waits to see the monitor before it publishes): every publisher's seq on every topic
+    # runs from 0 without a gap
+    seqs: dict[tuple[str, str], list[int]] = {}
+    for r in data:
+        seqs.setdefault((r.data["src"], r.topic), []).append(r.data["seq"])
+    assert {src for src, _ in seqs} >= {"environment", "nav-lqr", "ctrl-ddvi", "monitor"}
+    for key, got in seqs.items():
+        assert sorted(got) == list(range(len(got))), key
     for name in (
         "hill_x.png",
         "hill_y.png",
