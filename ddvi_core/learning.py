@@ -450,7 +450,7 @@ def learn_from_data(
         return H + np.triu(H, 1).T, (K_map @ p).reshape(n, m).T
 
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
-    P_s, K_s, k, resets, converged, res_vi, history = value_iteration_loop(
+    P_s, K_s, k, resets, converged, _, history, why = value_iteration_loop(
         riccati_map,
         Q_s,
         R_s,
@@ -506,7 +506,7 @@ def learn_from_data(
     message = (
         f"converged in {k} iterations ({resets} resets)"
         if converged
-        else f"not converged after {k} iterations (residual {res_vi:.3g})"
+        else f"not converged after {k} iterations ({why})"
     )
     return DDVIResult(
         K=K,

@@ -14,6 +14,7 @@ from ddvi_core.value_iteration import (
     StepSequence,
     balanced_scaling,
     value_iteration,
+    value_iteration_loop,
 )
 
 
@@ -168,3 +169,35 @@ def test_bounds_reset_counted() -> None:
     )
     assert res.resets > 0
     assert not res.converged
+
+
+def test_a_map_that_leaves_the_psd_cone_stops_early_and_says_so() -> None:
+    """Q is zero along the second axis; a Lyapunov map A^T P + P A could not push P out of
+    the cone there, but this one (as a map estimated from poor data can) takes from P_22 in
+    proportion to P_11.  Every restart from P0 leaves the cone alike: the loop stops after
+    ``max_psd_resets`` of them instead of running to ``max_iterations``."""
+    Q_s, R_s = np.diag([1.0, 0.0]), np.eye(1)
+
+    def leaky_map(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.diag([-0.1 * P[0, 0], -0.5 * P[0, 0]]), np.zeros((1, 2))
+
+    out = value_iteration_loop(
+        leaky_map, Q_s, R_s, 1e-3 * np.eye(2), StepSequence("constant", 0.01),
+        BoundSchedule("geometric", 1e6), tol=1e-9, max_iterations=200_000, max_psd_resets=20,
+    )  # fmt: skip
+    P, _, iterations, resets, converged, _, _, why = out
+    assert not converged and resets == 20
+    assert iterations < 2_000  # not the 200,000 it would otherwise spin through
+    assert "positive semidefinite cone 20 times from P0 with a step of 0.01" in why
+    assert np.linalg.eigvalsh(P)[0] > 0  # what it returns is P0, not the indefinite iterate
+    # the same loop on the Lyapunov map of a stable A converges with no reset at all
+    A_s = np.array([[-0.1, 0.0], [1.0, -0.5]])
+
+    def lyap(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return A_s.T @ P + P @ A_s, np.zeros((1, 2))
+
+    out = value_iteration_loop(
+        lyap, Q_s, R_s, 1e-3 * np.eye(2), StepSequence("constant", 0.01),
+        BoundSchedule("geometric", 1e6), tol=1e-9, max_iterations=200_000, max_psd_resets=20,
+    )  # fmt: skip
+    assert out[4] and out[3] == 0 and out[7] == ""
