@@ -12,8 +12,9 @@ the configured time and switches to the learned K, L.  With ``learning.relearn``
 watches its own data for a change of the plant (an actuator fault: ddvi_core.detection's
 one-step predictor, fitted on the data it learned from, and the one-orbit mean of its
 input-equivalent residual against the bound it states in its log); on a detection it explores
-again on K0 (phase "relearning"), learns again from the data since the detection, switches to
-the new gains and re-arms the detector.  Every command goes through
+again on K0 (phase "relearning"), learns again from the data since the detection with the
+density ratio added to its exostate (``Controller.learner_exostate``), switches to the new
+gains and re-arms the detector.  Every command goes through
 ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its nav message), which
 makes the facet's drag linear in u and the same at every altitude.  The learner gets
 what a flight computer knows: Q, R, the output map and reference (C, F), the exosystem E and
@@ -42,6 +43,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from ddvi_core.constants import R_EARTH
 from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
@@ -123,6 +125,10 @@ class Controller:
         self.detector: ChangeDetector | None = None
         self.detections = 0
         self.relearn_since: float | None = None  # data for re-learning start here
+        # after a detected change the learner's exostate gains the density ratio (see
+        # learner_exostate): (C, E, F) of the exosystem the learner and L work with
+        self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
+        self.density_mode = False
         self.learned_at: list[float] = []  # every switch to learned gains (s)
 
     def rejoin(self, t: float) -> str:
@@ -141,6 +147,18 @@ class Controller:
             f"learning at t = {self.learn_at:.0f} s"
         )
 
+    def learner_exostate(self, v: np.ndarray, altitude: float) -> np.ndarray:
+        """The exostate the learner collects and L multiplies: v itself, or after a detected
+        change [v; rho(h) / rho(h_0)].  Craft whose drag no longer matches (a panel fault)
+        feel a differential-drag bias proportional to the density at their altitude, which
+        oscillates about 50 % around the orbit and doubles in 20 orbits as the pair decays:
+        the exosystem's constant and harmonics cannot carry it (measured: re-learning
+        windows then never converge).  The bias acts where the input does, so it is
+        regulated with X = 0 and U constant whatever the ratio does; its row of E is zero."""
+        if not self.density_mode:
+            return v
+        return np.append(v, self.density_ratio(altitude))
+
     def density_ratio(self, altitude: float) -> float:
         """rho(h) / rho(h_0) of the nominal exponential atmosphere: how much more drag the
         facet makes at altitude h (m) than the linear model's reference altitude h_0 (the
@@ -152,7 +170,7 @@ class Controller:
         """The attitude command sigma3 for a flight-software step at t, from state x (4,) and
         exostate v; ``u_applied`` is the linear-model input it realises (what the learner
         records)."""
-        u = float((-self.K @ x + self.L @ v)[0])
+        u = float((-self.K @ x + self.L @ self.learner_exostate(v, altitude))[0])
         if self.exploring:
             u += float(self.exploration(t, 1)[0])
         # schedule on the measured altitude: the drag the linear model's u stands for is the
@@ -170,7 +188,7 @@ class Controller:
         outcome = SampleOutcome(fsw=on_grid(t, self.fsw))
         if outcome.fsw:
             outcome.learn_log = self.tick(t, x, v, altitude)
-        outcome.rejected = self.collect(t, x, v)
+        outcome.rejected = self.collect(t, x, v, altitude)
         return outcome
 
     @property
@@ -203,8 +221,15 @@ class Controller:
         det, lrn = self.detector, self.deputy.learning
         self.detections += 1
         self.phase, self.converged, self.detector = "relearning", False, None
-        self.K, self.L = np.array([lrn.K0], dtype=float), np.zeros((1, self.problem.q))
-        self.collector.reset()
+        self.source = "initial"  # flying K0 again until it re-learns
+        if not self.density_mode:
+            C, E, F = self.exosystem
+            F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
+            self.exosystem = (C, scipy.linalg.block_diag(E, 0.0), F_rho)
+            self.density_mode = True
+        q = self.exosystem[1].shape[0]
+        self.K, self.L = np.array([lrn.K0], dtype=float), np.zeros((1, q))
+        self.collector = IntervalCollector(4, 1, q, lrn.interval, max_gap=self.collector.max_gap)
         self.learning_samples.clear()
         period = orbit_period(self.dep)
         self.relearn_since = self.collect_from = t + lrn.relearn_settle_orbits * period
@@ -233,10 +258,11 @@ class Controller:
         issued = math.floor((t_k - self.actuation_delay) / self.fsw + 1e-9) * self.fsw
         return self.input_at(issued) if issued > -1e-6 else 0.0
 
-    def collect(self, t: float, x: np.ndarray, v: np.ndarray) -> str | None:
+    def collect(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:
         """While exploring, feed the collector the sample with the input acting on the plant
         from t on (``input_acting``); returns why the collector refused it, if it did.  Once
         learned, feed the change detector (if armed) instead."""
+        v = self.learner_exostate(v, altitude)
         if self.phase == "learned" and self.detector is not None:
             self.detector.add(t, x, [self.input_acting(t)], v)
             return None
@@ -261,7 +287,7 @@ class Controller:
                 [s[0] for s in samples],
                 np.reshape([s[1] for s in samples], (len(samples), 4)),
                 [s[2] for s in samples],
-                np.reshape([s[3] for s in samples], (len(samples), self.problem.q)),
+                np.reshape([s[3] for s in samples], (len(samples), self.exosystem[1].shape[0])),
                 step=self.deputy.navigation.period,
                 translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
             )
@@ -283,12 +309,13 @@ class Controller:
     def learn(self, t: float) -> str:
         """Run data-driven value iteration on the data so far; switch gains on success."""
         lrn, pr = self.deputy.learning, self.problem
+        C, E, F = self.exosystem
         n = self.n_rate
         t0 = time.perf_counter()
         self.learn_attempts += 1
         since = -math.inf
-        if self.relearn_since is not None:  # re-learning: every sample since the detection
-            since = self.relearn_since
+        if self.relearn_since is not None:  # re-learning: the newest window since settling
+            since = max(self.relearn_since, t - lrn.relearn_window_orbits * orbit_period(self.dep))
         elif lrn.window_orbits > 0:
             since = t - lrn.window_orbits * orbit_period(self.dep)
         try:
@@ -298,9 +325,9 @@ class Controller:
                 pr.Q,
                 pr.R,
                 time_unit=n,
-                C=pr.C,
-                E=pr.E,
-                F=pr.F,
+                C=C,
+                E=E,
+                F=F,
                 steps=StepSequence(lrn.step, lrn.step_size),
                 bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
                 tol=lrn.tol,
@@ -473,7 +500,7 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
     def collect(t: float) -> None:
         nonlocal last
         x, v, altitude = ready.pop(t)
-        rejected = ctrl.collect(t, x, v)
+        rejected = ctrl.collect(t, x, v, altitude)
         if rejected is not None:
             counters["samples_rejected"] += 1
             ctx.log("warning", rejected, t)

@@ -135,7 +135,7 @@ class Learning:
     # after learning, watch the plant for a change (an actuator fault) and learn again
     relearn: bool = False
     relearn_settle_orbits: float = 2.0  # after a detection, K0 stops the approach: not data
-    relearn_window_orbits: float = 6.0  # then explore this long and re-learn from it
+    relearn_window_orbits: float = 10.0  # then explore this long and re-learn from it
     detector_bound: float = 100.0  # x the input-equivalent residual's RMS on the learning data
     detector_window_orbits: float = 1.0  # the residual's mean is taken over this window
 

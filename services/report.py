@@ -325,6 +325,7 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
         "final_radial_m": None,
         "gain_error_vs_lqr": None,
         "learned_at_orbits": None,
+        "relearned_at_orbits": [],
         "gains": None,
         "lqr_gains": {"K": s.K_lqr.tolist(), "L": s.L_lqr.tolist()},
         "phase": craft.status[-1].body["phase"] if craft.status else None,
@@ -344,9 +345,15 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
         out["gains"] = {"K": g.K, "L": g.L, "source": g.source}
         if d.controller == "ddvi":
             out["gain_error_vs_lqr"] = _norm_rel(np.asarray(g.K), s.K_lqr)
-            learned = next((r for r in craft.gains if r.source == "ddvi"), None)
-            if learned is not None:
-                out["learned_at_orbits"] = learned.t / data.period
+            # every switch to learned gains: the first learning, then each re-learning
+            switches = [
+                r.t / data.period
+                for k, r in enumerate(craft.gains)
+                if r.source == "ddvi" and (k == 0 or craft.gains[k - 1].source != "ddvi")
+            ]
+            if switches:
+                out["learned_at_orbits"] = switches[0]
+                out["relearned_at_orbits"] = switches[1:]
     return out
 
 
@@ -530,11 +537,13 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, d in summary["deputies"].items():
+        learned = [d["learned_at_orbits"], *d.get("relearned_at_orbits", [])]
         lines.append(
             f"| {name} | {d['controller']} | {_num(d['final_along_track_error_m'])} "
             f"| {_num(d['max_along_track_error_last_orbit_m'])} | {_num(d['final_radial_m'])} "
             f"| {_num(d['max_radial_last_orbit_m'])} | {_num(d['gain_error_vs_lqr'])} "
-            f"| {_num(d['learned_at_orbits'], '.2f')} | {d['phase'] or '-'} |"
+            f"| {', '.join(_num(t, '.2f') for t in learned)} "
+            f"| {d['phase'] or '-'} |"
         )
     m = summary["messages"]
     tot = m["totals"]

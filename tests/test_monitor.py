@@ -161,6 +161,7 @@ class Mission:
         self.K_lqr = {d.name: np.asarray(lqr_gains(dep, d)[0]) for d in dep.deputy}
         self.K_beta = self.K_lqr["beta"] * 1.01  # the "learned" gain: 1 % off LQR
         self.t_learn = 1200.0
+        self.t_detect, self.t_relearn = 1800.0, 2400.0  # K0 again, then the same K re-learned
         self.last_truth: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def pub(self, service: str, topic: str, schema: str, body: dict[str, Any], t: float) -> None:
@@ -202,9 +203,9 @@ class Mission:
                 self.pub(f"ctrl-{sc}", f"cmd/{sc}/att", "cmd", cmd, t)
             if k == 0:
                 self.gains("alpha", self.K_lqr["alpha"], "lqr", t)
-            if t < self.t_learn:
+            if t < self.t_learn or self.t_detect <= t < self.t_relearn:
                 self.gains("beta", np.zeros((1, 4)), "initial", t)
-            elif t == self.t_learn:
+            elif t in (self.t_learn, self.t_relearn):
                 self.gains("beta", self.K_beta, "ddvi", t)
             if k % 30 == 0:
                 for sc, mode in (("alpha", "lqr"), ("beta", "ddvi")):
@@ -316,6 +317,8 @@ def test_monitor_records_and_reports_a_mission(monitor: Monitor) -> None:
     assert alpha["gains"]["source"] == "lqr" and alpha["phase"] == "lqr"
     assert beta["gain_error_vs_lqr"] == pytest.approx(0.01, rel=1e-6)
     assert beta["learned_at_orbits"] == pytest.approx(mission.t_learn / mission.period)
+    assert beta["relearned_at_orbits"] == [pytest.approx(mission.t_relearn / mission.period)]
+    assert alpha["relearned_at_orbits"] == []
     assert np.allclose(beta["gains"]["K"], mission.K_beta) and beta["phase"] == "learned"
     msgs = summary["messages"]
     assert msgs["rejected"] == 1 and msgs["rejected_by_reason"] == {"malformed": 1}
