@@ -123,14 +123,16 @@ def _curvilinear3(rc: _Vec, vc: _Vec, rd: _Vec, vd: _Vec) -> tuple[float, ...]:
 def _vec3(a: ArrayLike, name: str) -> _Vec:
     """``a`` as three finite floats; ValueError naming ``name`` otherwise.  Element by element,
     not through np.asarray: this runs four times a sample and numpy's call overhead was a third
-    of the navigation's time."""
-    if (
-        (a.shape == (3,))
-        if isinstance(a, np.ndarray)
-        else (isinstance(a, list | tuple) and len(a) == 3)
-    ):
+    of the navigation's time; other array-likes take numpy's path."""
+    v = a
+    if not isinstance(v, np.ndarray | list | tuple):
         try:
-            x, y, z = float(a[0]), float(a[1]), float(a[2])  # type: ignore[index]
+            v = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be a finite 3-vector, got {a!r}") from None
+    if (v.shape == (3,)) if isinstance(v, np.ndarray) else len(v) == 3:
+        try:
+            x, y, z = float(v[0]), float(v[1]), float(v[2])
         except (TypeError, ValueError):
             pass
         else:

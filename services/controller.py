@@ -12,24 +12,24 @@ the configured time and switches to the learned K, L.  With ``learning.relearn``
 watches its own data for a change of the plant (an actuator fault: ddvi_core.detection's
 one-step predictor, fitted on the data it learned from, and the one-orbit mean of its
 input-equivalent residual against the bound it states in its log); on a detection it explores
-again on K0 (phase "relearning"), learns again from the data since the detection with the
-density ratio added to its exostate (``Controller.learner_exostate``), switches to the new
-gains and re-arms the detector.  Every command goes through
-ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its nav message), which
-makes the facet's drag linear in u and the same at every altitude.  The learner gets
-what a flight computer knows: Q, R, the output map and reference (C, F), the exosystem E and
-the orbit rate; never A, B or D.  Control input u = sigma3, the relative MRP about the orbit
-normal; sigma1 = sigma2 = 0.
+again on K0 (phase "relearning"), learns again from the newest ``relearn_window_orbits`` of data
+after ``relearn_settle_orbits``, with the density ratio added to its exostate
+(``Controller.learner_exostate``), switches to the new gains and re-arms the detector.  Every
+command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
+nav message), which makes the facet's drag linear in u and the same at every altitude.  The
+learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
+exosystem E and the orbit rate; never A, B or D.  Control input u = sigma3, the relative MRP
+about the orbit normal; sigma1 = sigma2 = 0.
 
 Timing: a flight-software step runs at each multiple of run.fsw_period of the clock, on the
 newest navigation sample it has; with a link delay d on its inputs (the deployment's [[link]])
 that is the sample measured at T - d, and the step waits until that sample is accounted for
 (delivered, or lost by its link).  Samples and steps are taken in time order, a step before the
 sample measured at its own time: with no delay this is exactly ``Controller.on_sample``.
-While its navigation service is away (liveliness token gone, until its next sample) a step
-flies on the newest sample there is.  Restarted into a running mission (``--join``) it flies
-from the first step it has a sample for; a learner starts over (``Controller.rejoin``) and says
-so in its log.
+While its navigation service is away (liveliness token gone for NAV_AWAY_GRACE, until the token
+is back) a step flies on the newest sample there is.  Restarted into a running mission
+(``--join``) it flies from the first step it has a sample for; a learner starts over
+(``Controller.rejoin``) and says so in its log.
 """
 
 from __future__ import annotations
@@ -411,8 +411,9 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
     steps = 0
     # a restarted controller flies from the first step it has a sample for (set below)
     next_tick = math.inf if ctx.joining else 0.0
-    # while navigation is away (its token gone NAV_AWAY_GRACE ago, until its next sample),
-    # steps fly on the newest sample there is instead of waiting for one that will not come
+    # while navigation is away (its token gone NAV_AWAY_GRACE ago, until the token is back),
+    # steps fly on the newest sample there is instead of waiting for one that will not come.
+    # Not until its next sample: a late or replayed one would end the absence for good.
     nav_gone: float | None = None  # when its token went (monotonic s)
     final_t: float | None = None
     final_seen = 0.0
@@ -544,13 +545,12 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
                 break
             continue
         if kind == _PRESENCE:
-            if not msg and nav_gone is None:
-                nav_gone = time.monotonic()  # back: once it publishes again
+            # gone: from the first notice; back: a restarted navigation is alive once it publishes
+            gone_since = nav_gone if nav_gone is not None else time.monotonic()
+            nav_gone = None if msg else gone_since
         elif kind == _SEEN:
             key = "nav" if msg.schema == "nav" else "exo"
             clock[key] = max(clock[key], msg.t)
-            if key == "nav":
-                nav_gone = None
         elif msg.schema == "clock":
             clock["now"] = max(clock["now"], msg.t)
             ctx.bus.pump(msg.t)  # release what the links held until now

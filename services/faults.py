@@ -64,7 +64,8 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--velocity", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    default=[0.0, 0.0, 0.0], help="bias: Hill velocity bias, m/s")  # fmt: skip
     p.add_argument("--hub", default=DEFAULT_HUB, help="the run's hub (ddvi run prints it)")
-    p.add_argument("--timeout", type=float, default=10.0, help="s to wait for the run's answer")
+    # a lock-step run sends no clock while a controller learns (seconds, more on a busy host)
+    p.add_argument("--timeout", type=float, default=30.0, help="s to wait for the run's answer")
     return p
 
 

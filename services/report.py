@@ -345,7 +345,8 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
         out["gains"] = {"K": g.K, "L": g.L, "source": g.source}
         if d.controller == "ddvi":
             out["gain_error_vs_lqr"] = _norm_rel(np.asarray(g.K), s.K_lqr)
-            # every switch to learned gains: the first learning, then each re-learning
+            # every switch to learned gains: the first learning, then each re-learning (or,
+            # for a restarted controller, its learning from scratch)
             switches = [
                 r.t / data.period
                 for k, r in enumerate(craft.gains)

@@ -19,9 +19,11 @@ import logging
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
+from typing import Any
 
 from services.bus import Bus, BusSettings, open_session, wait_for_alive
 from services.deployment import Deployment, DeploymentError, load_deployment
@@ -115,6 +117,15 @@ def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
+def _see_monitor(session: Any, run: str, stop: threading.Event) -> bool:
+    """Wait up to MONITOR_WAIT s for the monitor's token, in slices: a stop request ends it."""
+    deadline = time.monotonic() + MONITOR_WAIT
+    while not stop.is_set() and time.monotonic() < deadline:
+        if wait_for_alive(session, run, ["monitor"], min(0.5, deadline - time.monotonic())):
+            return True
+    return False
+
+
 def run_service(
     main: Callable[[ServiceContext], int], default_name: str, argv: list[str] | None = None
 ) -> int:
@@ -145,9 +156,7 @@ def run_service(
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
             # the monitor subscribed before its token: seeing the token, this session knows
             # the subscription (the launcher starts the monitor first: this is quick)
-            if args.name != "monitor" and not wait_for_alive(
-                session, args.run, ["monitor"], MONITOR_WAIT
-            ):
+            if args.name != "monitor" and not _see_monitor(session, args.run, stop):
                 log.warning("the monitor is not seen after %g s: what this service publishes "
                             "before it is may not be recorded", MONITOR_WAIT)  # fmt: skip
             bus.subscribe("fault/link", ctx.on_link_fault, expected_schema="fault")

@@ -111,8 +111,8 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
     """deployments/panel-fault.toml in one process, cut after orbit 34, with a second DDVI
     deputy whose panel stays whole: both learn at orbit 15 and arm the detector; the faulted
     one detects its 0.8x panel within an orbit of orbit 21 (not before), explores again and
-    re-learns 12 orbits later, with the density ratio in its exostate, a gain 10 times closer
-    to the faulted model's LQR gain than the one it flew before; the whole one, through the
+    re-learns 12 orbits later, with the density ratio in its exostate, a gain much closer to
+    the faulted model's LQR gain than the one it flew before; the whole one, through the
     approach's hardest part (orbits 15 to 34), never alarms."""
     table = read_table("panel-fault")
     table["run"]["orbits"] = 34.0
@@ -127,7 +127,7 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
         assert "fault detector: bound = +-" in out[name]["log"][0]
     faulted, intact = out["ddvi"]["controller"], out["whole"]["controller"]
     assert intact.detections == 0 and intact.phase == "learned"
-    assert intact.detector is not None and intact.detector.statistic < 1.0
+    assert intact.detector is not None and intact.detector.statistic < 0.6
     assert faulted.detections == 1
     assert "left the bound" in out["ddvi"]["log"][1]
     detected = float(out["ddvi"]["log"][1].split("at t = ")[1].split(" s")[0])
@@ -142,5 +142,5 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
     K_faulted = solve_lqr(pr.A, 0.8 * pr.B, pr.Q, pr.R).K
     err_old = np.linalg.norm(intact.K - K_faulted) / np.linalg.norm(K_faulted)
     err_new = np.linalg.norm(faulted.K - K_faulted) / np.linalg.norm(K_faulted)
-    assert err_new < 0.02 and err_old > 0.05  # measured 0.0095 and 0.086
+    assert err_new < 0.02 and err_old > 4 * err_new  # measured 0.0095 and 0.086
     assert faulted.L.shape == (1, pr.q + 1)  # L now weighs the density ratio too

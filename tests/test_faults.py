@@ -180,10 +180,12 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(
         assert commands == expected, sc
 
 
+# 10 orbits: long enough that the `ddvi fault` calls (a process each, seconds to start on a busy
+# host) land while the run still flies
 RESTARTED = """
 [run]
 name = "restarts"
-orbits = 5.0
+orbits = 10.0
 command_deadline = 20.0
 [bus]
 port = {port}
