@@ -128,7 +128,6 @@ class Controller:
         # after a detected change the learner's exostate gains the density ratio (see
         # learner_exostate): (C, E, F) of the exosystem the learner and L work with
         self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
-        self.density_mode = False
         self.learned_at: list[float] = []  # every switch to learned gains (s)
 
     def rejoin(self, t: float) -> str:
@@ -146,6 +145,11 @@ class Controller:
             f"lost); exploring from t = {t:.0f} s, data from t = {self.collect_from:.0f} s, "
             f"learning at t = {self.learn_at:.0f} s"
         )
+
+    @property
+    def density_mode(self) -> bool:
+        """The learner's exostate carries the density ratio (since a detected change)."""
+        return self.exosystem[1].shape[0] > self.problem.q
 
     def learner_exostate(self, v: np.ndarray, altitude: float) -> np.ndarray:
         """The exostate the learner collects and L multiplies: v itself, or after a detected
@@ -226,7 +230,6 @@ class Controller:
             C, E, F = self.exosystem
             F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
             self.exosystem = (C, scipy.linalg.block_diag(E, 0.0), F_rho)
-            self.density_mode = True
         q = self.exosystem[1].shape[0]
         self.K, self.L = np.array([lrn.K0], dtype=float), np.zeros((1, q))
         self.collector = IntervalCollector(4, 1, q, lrn.interval, max_gap=self.collector.max_gap)
@@ -262,13 +265,12 @@ class Controller:
         """While exploring, feed the collector the sample with the input acting on the plant
         from t on (``input_acting``); returns why the collector refused it, if it did.  Once
         learned, feed the change detector (if armed) instead."""
-        v = self.learner_exostate(v, altitude)
         if self.phase == "learned" and self.detector is not None:
-            self.detector.add(t, x, [self.input_acting(t)], v)
+            self.detector.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
             return None
         if not self.exploring or t < self.collect_from - 1e-6:
             return None
-        u = self.input_acting(t)
+        u, v = self.input_acting(t), self.learner_exostate(v, altitude)
         try:
             self.collector.add(t, x, [u], v)
         except LearningError as exc:
@@ -545,9 +547,10 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
                 break
             continue
         if kind == _PRESENCE:
-            # gone: from the first notice; back: a restarted navigation is alive once it publishes
-            gone_since = nav_gone if nav_gone is not None else time.monotonic()
-            nav_gone = None if msg else gone_since
+            if msg:  # back: a restarted navigation is alive once it publishes
+                nav_gone = None
+            elif nav_gone is None:  # gone: from the first notice
+                nav_gone = time.monotonic()
         elif kind == _SEEN:
             key = "nav" if msg.schema == "nav" else "exo"
             clock[key] = max(clock[key], msg.t)

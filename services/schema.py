@@ -461,26 +461,25 @@ def _checked_size(payload: bytes) -> int:
     return size
 
 
+def _unpack(payload: bytes, what: str, **limits: Any) -> Any:
+    """msgpack.unpackb of untrusted bytes within ``limits`` (no ext types); any failure is
+    MessageError ``malformed``, naming ``what`` was expected."""
+    try:
+        return msgpack.unpackb(payload, raw=False, use_list=True, max_ext_len=0, **limits)
+    except Exception as exc:
+        raise MessageError("malformed", f"not a msgpack {what}: {exc}") from exc
+
+
 def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Message:
     """Unpack and validate a payload; ``expected`` restricts the accepted schema name(s).
 
     Never raises anything but MessageError for any input bytes.
     """
     size = _checked_size(payload)
-    try:
-        raw = msgpack.unpackb(
-            payload,
-            raw=False,
-            use_list=True,
-            strict_map_key=True,
-            max_str_len=size,
-            max_bin_len=0,
-            max_array_len=size,
-            max_map_len=size,
-            max_ext_len=0,
-        )
-    except Exception as exc:  # any unpack failure of untrusted bytes is "malformed"
-        raise MessageError("malformed", f"not a msgpack message: {exc}") from exc
+    raw = _unpack(
+        payload, "message", strict_map_key=True, max_str_len=size, max_bin_len=0,
+        max_array_len=size, max_map_len=size,
+    )  # fmt: skip
     if not isinstance(raw, dict):
         raise MessageError("malformed", f"expected a msgpack map, got {_type_name(raw)}")
     keys = set(raw)
@@ -539,19 +538,9 @@ def unpack_batch(payload: bytes) -> list[bytes] | None:
     size = _checked_size(payload)
     if not size or payload[0] not in _ARRAY_MARKERS:
         return None
-    try:
-        parts = msgpack.unpackb(
-            payload,
-            raw=False,
-            use_list=True,
-            max_str_len=0,
-            max_bin_len=size,
-            max_array_len=MAX_BATCH,
-            max_map_len=0,
-            max_ext_len=0,
-        )
-    except Exception as exc:  # any unpack failure of untrusted bytes is "malformed"
-        raise MessageError("malformed", f"not a msgpack batch: {exc}") from exc
+    parts = _unpack(
+        payload, "batch", max_str_len=0, max_bin_len=size, max_array_len=MAX_BATCH, max_map_len=0
+    )
     if not parts or not all(type(p) is bytes for p in parts):
         raise MessageError(
             "malformed", f"a batch is an array of 1 to {MAX_BATCH} byte strings (messages)"
