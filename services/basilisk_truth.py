@@ -169,10 +169,12 @@ class BasiliskTruth:
         before the first step."""
         return self._sigma_BN
 
-    def set_area_factor(self, deputy: int, factor: float) -> None:
+    def set_panel(
+        self, deputy: int, area_factor: float | None = None, normal_angle: float | None = None
+    ) -> None:
         raise RuntimeError(
             "panel faults need the built-in truth: Basilisk 2.12's facetDragDynamicEffector "
-            "cannot change a facet's area once added"
+            "cannot change a facet's area or normal once added"
         )
 
     def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]:

@@ -195,8 +195,11 @@ class Fault:
     deputy by the service that owns what fails:
 
     - ``panel``: the drag panel's true area becomes ``area_factor`` times the nominal design's
-      (a partly deployed or damaged panel); the environment applies it.  The controllers'
-      model keeps the nominal area.
+      (a partly deployed or damaged panel), and/or its hinge sticks at ``normal_angle`` (deg,
+      the facet normal in the body x-y plane, nominally spacecraft.normal_angle): the panel no
+      longer sits where the controllers' model has it, though the body's attitude still turns
+      it.  Either may be left out (unchanged); the environment applies it.  The controllers'
+      model keeps the nominal panel.
     - ``bias``: the navigation solution's bias becomes ``position_bias`` (m, Hill x y z) and
       ``velocity_bias`` (m/s); the deputy's navigation service applies it.
 
@@ -205,7 +208,8 @@ class Fault:
     at_orbits: float = 0.0
     kind: str = "panel"
     deputy: str = ""
-    area_factor: float = 1.0
+    area_factor: float | None = None
+    normal_angle: float | None = None
     position_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     velocity_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
@@ -319,6 +323,10 @@ def _convert(where: str, tp: Any, value: Any) -> Any:
     if isinstance(tp, type) and hasattr(tp, "__dataclass_fields__"):
         return parse_table(tp, value, where)
     if origin in (typing.Union, types.UnionType):
+        # an optional value (``float | None``): TOML has no null, so a key given is a value
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return _convert(where, args[0], value)
         raise DeploymentError(f"{where}: unsupported type {tp}")
     raise DeploymentError(f"{where}: unsupported type {_type_name(tp)}")
 
@@ -504,6 +512,20 @@ def _validate_restarts(dep: Deployment) -> None:
             )
 
 
+def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
+    """Raise ValueError unless a panel fault's values are in range: area_factor finite and
+    > 0, normal_angle in (0, 90) deg, at least one of them given."""
+    if area_factor is None and normal_angle is None:
+        raise ValueError("a panel fault changes area_factor, normal_angle or both: give one")
+    if area_factor is not None and not (math.isfinite(area_factor) and area_factor > 0):
+        raise ValueError(f"area_factor must be finite and > 0, got {area_factor}")
+    if normal_angle is not None and not (0 < normal_angle < 90):
+        raise ValueError(
+            f"normal_angle must lie in (0, 90) deg (the facet normal in the body x-y plane), "
+            f"got {normal_angle}"
+        )
+
+
 def _validate_faults(dep: Deployment) -> None:
     names = [d.name for d in dep.deputy]
     for k, f in enumerate(dep.fault):
@@ -519,7 +541,15 @@ def _validate_faults(dep: Deployment) -> None:
                 f"{w}.at_orbits: must lie in [0, run.orbits = {dep.run.orbits:g}), "
                 f"got {f.at_orbits}"
             )
-        _positive(f"{w}.area_factor", f.area_factor)
+        if f.kind == "panel":
+            try:
+                check_panel(f.area_factor, f.normal_angle)
+            except ValueError as exc:
+                raise DeploymentError(f"{w}: {exc}") from None
+        elif f.area_factor is not None or f.normal_angle is not None:
+            raise DeploymentError(
+                f"{w}: area_factor and normal_angle belong to panel faults, not {f.kind!r}"
+            )
         for key in ("position_bias", "velocity_bias"):
             values = getattr(f, key)
             if len(values) != 3 or not all(math.isfinite(v) for v in values):

@@ -1,7 +1,8 @@
 """Environment service: the truth and the time master.
 
 Inputs:  cmd/<deputy>/att (cmd) from each controller; fault/panel (fault: target = deputy,
-         params.area_factor) from the ground; the deployment's scheduled [[fault]] panels.
+         params.area_factor and/or params.normal_angle) from the ground; the deployment's
+         scheduled [[fault]] panels.
 Outputs: truth/<sc> (truth) for the chief and every deputy and exo/state (exo) at every
          navigation sample; clock (clock) at every flight-software step in lock-step (at every
          sample in real time); stats/environment.
@@ -36,6 +37,7 @@ from services.bus import queue_handler, wait_for_alive, watch_alive
 from services.mission import (
     ReentryError,
     Truth,
+    describe_panel,
     duration,
     exostate,
     on_grid,
@@ -113,35 +115,40 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
         "bad_faults": 0,
     }
     # panel faults: the deployment's, at their times, and the ground's (fault/panel) at the
-    # next step; (t, deputy, area factor, origin)
+    # next step; (t, deputy, area factor, normal angle, origin)
     panel_faults = [
-        (f.at_orbits * orbit_period(dep), f.deputy, f.area_factor, "scheduled")
+        (f.at_orbits * orbit_period(dep), f.deputy, f.area_factor, f.normal_angle, "scheduled")
         for f in dep.fault
         if f.kind == "panel"
     ]
 
     def apply_panel_faults(t_k: float) -> None:
-        for fault in sorted(f for f in panel_faults if f[0] <= t_k + 1e-6):
+        due = [f for f in panel_faults if f[0] <= t_k + 1e-6]
+        for fault in sorted(due, key=lambda f: f[0]):
             panel_faults.remove(fault)
-            _, sc, factor, origin = fault
+            _, sc, factor, angle, origin = fault
             try:
-                truth.set_area_factor(deputies.index(sc), factor)
+                truth.set_panel(deputies.index(sc), factor, angle)
             except (ValueError, RuntimeError) as exc:
                 counters["bad_faults"] += 1
                 ctx.log("warning", f"fault panel {sc}: refused ({exc})", t_k)
                 continue
             counters["panel_faults"] += 1
-            ctx.log("warning", f"fault panel {sc}: panel area now {factor:g} x nominal "
+            ctx.log("warning", f"fault panel {sc}: {describe_panel(factor, angle)} "
                     f"from t = {t_k:.0f} s ({origin})", t_k)  # fmt: skip
 
     def on_fault(msg: Message) -> None:
-        sc, factor = msg.body["target"], msg.body["params"].get("area_factor")
-        if sc not in deputies or not isinstance(factor, float | int):
+        sc, params = msg.body["target"], msg.body["params"]
+        factor, angle = params.get("area_factor"), params.get("normal_angle")
+        numbers = all(a is None or isinstance(a, float | int) for a in (factor, angle))
+        if sc not in deputies or not numbers or (factor is None and angle is None):
             counters["bad_faults"] += 1
             ctx.log("warning", f"fault panel {sc}: refused (needs a deputy of this run and "
-                    f"params.area_factor; got {msg.body})", msg.t)  # fmt: skip
+                    f"params.area_factor and/or params.normal_angle; got {msg.body})",
+                    msg.t)  # fmt: skip
             return
-        panel_faults.append((-math.inf, sc, float(factor), f"from {msg.src}"))
+        factor, angle = (None if a is None else float(a) for a in (factor, angle))
+        panel_faults.append((-math.inf, sc, factor, angle, f"from {msg.src}"))
 
     away_since: dict[str, float] = {}  # wall time each away controller went
     returned_at: dict[str, float] = {}  # step at which each came back

@@ -6,8 +6,11 @@ clock, which also proves the run is there).  Kinds built so far:
 
     kill SERVICE                    the launcher kills the service with SIGKILL, as a crash
                                     would; its [[restart]] policy decides what follows
-    panel DEPUTY --area-factor F    the environment makes the deputy's true drag-panel area F
-                                    times the nominal (the controllers are not told)
+    panel DEPUTY [--area-factor F] [--stuck-angle DEG]
+                                    the environment makes the deputy's true drag-panel area F
+                                    times the nominal and/or sticks its hinge with the facet
+                                    normal at DEG in the body x-y plane (the controllers are
+                                    not told)
     bias DEPUTY --position X Y Z [--velocity X Y Z]
                                     the deputy's navigation bias becomes this (m, m/s)
     link --from PUB --to SUB [--topic T] [--delay S] [--jitter S] [--loss P] [--duplicate P]
@@ -40,6 +43,7 @@ from services.bus import (
     queue_handler,
     wait_for_alive,
 )
+from services.deployment import check_panel
 from services.links import LINK_PARAMETERS
 from services.schema import decode
 
@@ -59,6 +63,8 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         unit = "s" if key in ("delay", "jitter") else "probability"
         p.add_argument(f"--{key}", type=float, default=0.0, help=f"link: {key} ({unit})")
     p.add_argument("--area-factor", type=float, help="panel: true area / nominal")
+    p.add_argument("--stuck-angle", type=float, metavar="DEG",
+                   help="panel: facet normal stuck at DEG (0-90) in body x-y")  # fmt: skip
     p.add_argument("--position", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="bias: Hill position bias, m")  # fmt: skip
     p.add_argument("--velocity", type=float, nargs=3, metavar=("X", "Y", "Z"),
@@ -104,10 +110,14 @@ def fault_command(args: argparse.Namespace) -> int:
         print(f"ddvi fault: {exc}", file=sys.stderr)
         return 2
     if args.kind == "panel":
-        if args.area_factor is None or not args.area_factor > 0:
-            print("ddvi fault panel: give --area-factor F > 0", file=sys.stderr)
+        try:
+            check_panel(args.area_factor, args.stuck_angle)
+        except ValueError as exc:
+            print(f"ddvi fault panel: give --area-factor F > 0 and/or --stuck-angle DEG in "
+                  f"(0, 90) ({exc})", file=sys.stderr)  # fmt: skip
             return 2
-        params, acting = {"area_factor": args.area_factor}, "environment"
+        params = {"area_factor": args.area_factor, "normal_angle": args.stuck_angle}
+        params, acting = {k: v for k, v in params.items() if v is not None}, "environment"
     elif args.kind == "bias":
         if args.position is None:
             print("ddvi fault bias: give --position X Y Z (m)", file=sys.stderr)

@@ -60,15 +60,18 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     names = [d.name for d in dep.deputy]
     # panel faults as the environment applies them (navigation-bias faults are not modelled)
     panels = sorted(
-        (f.at_orbits * orbit_period(dep), names.index(f.deputy), f.area_factor)
-        for f in dep.fault
-        if f.kind == "panel"
+        (
+            (f.at_orbits * orbit_period(dep), names.index(f.deputy), f.area_factor, f.normal_angle)
+            for f in dep.fault
+            if f.kind == "panel"
+        ),
+        key=lambda f: f[0],
     )
     try:
         while t_k < t_end - 1e-6:
             while panels and panels[0][0] <= t_k + 1e-6:
-                _, i, factor = panels.pop(0)
-                truth.set_area_factor(i, factor)
+                _, i, factor, angle = panels.pop(0)
+                truth.set_panel(i, factor, angle)
             samples, traj = truth.step(t_k, sigma)
             for k, t in enumerate(samples):
                 sample(float(t), traj[k])

@@ -140,6 +140,14 @@ class Launcher:
                     f"factor {d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is "
                     f"{-margin:.0%} below the chief's, so its along-track error will grow"
                 )
+        for f in self.dep.fault:
+            d = self.dep.deputy_named(f.deputy)
+            if f.kind == "panel" and holding_margin(self.dep, d, f.area_factor, f.normal_angle) < 0:
+                self.say(
+                    f"warning: after its panel fault at orbit {f.at_orbits:g} deputy {d.name!r} "
+                    "cannot hold a slot: no attitude within its limit makes its drag match the "
+                    "chief's"
+                )
         if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
             self.say(f"network namespaces {missing} do not exist: run `ddvi netns up "
                      f"{self.dep.path}` first (as root)", error=True)  # fmt: skip

@@ -18,7 +18,7 @@ from ddvi_core.constants import MU_EARTH, R_EARTH
 from ddvi_core.orbit import elements_to_rv, mrp_to_dcm
 from ddvi_core.relnav import relative_state
 from ddvi_core.truth import Atmosphere, Spacecraft, propagate
-from services.deployment import Deployment, Deputy, Orbit
+from services.deployment import Deployment, Deputy, Orbit, check_panel
 
 if TYPE_CHECKING:
     from ddvi_core.models import DragRendezvous
@@ -139,28 +139,40 @@ def initial_states(dep: Deployment) -> NDArray[np.float64]:
     return np.array([_rv(dep.chief)] + [_rv(d.orbit) for d in dep.deputy])
 
 
-def holding_margin(dep: Deployment, deputy: Deputy) -> float:
+def holding_margin(
+    dep: Deployment, deputy: Deputy, area_factor: float | None = None,
+    normal_angle: float | None = None,
+) -> float:  # fmt: skip
     """How far the deputy's truth drag can be raised above the chief's, as a fraction of the
-    chief's: max over |sigma3| <= limit of A_d sin(alpha + phi) / (A_c sin alpha) - 1, with
-    phi = 4 atan(sigma3) (the facet geometry of ``ddvi_core.models.drag_sensitivity``).  Below
-    zero, no attitude makes the deputy's drag match the chief's: it cannot hold a slot, and
-    the along-track error grows whatever the controller does."""
+    chief's: max over |sigma3| <= limit of f A sin(alpha_d + phi) / (A sin alpha) - 1, with
+    phi = 4 atan(sigma3) (the facet geometry of ``ddvi_core.models.drag_sensitivity``), f the
+    deputy's area factor and alpha_d its facet normal angle (both default to the deployment's:
+    pass a panel fault's to ask about after it).  Below zero, no attitude makes the deputy's
+    drag match the chief's: it cannot hold a slot, and the along-track error grows whatever
+    the controller does."""
     alpha = math.radians(dep.spacecraft.normal_angle)
+    alpha_d = alpha if normal_angle is None else math.radians(normal_angle)
+    factor = deputy.area_factor if area_factor is None else area_factor
     phi = 4.0 * math.atan(deputy.attitude_limit)
     best = (
         1.0
-        if alpha - phi <= math.pi / 2 <= alpha + phi
-        else max(math.sin(alpha + phi), math.sin(alpha - phi))
+        if alpha_d - phi <= math.pi / 2 <= alpha_d + phi
+        else max(math.sin(alpha_d + phi), math.sin(alpha_d - phi))
     )
-    return deputy.area_factor * best / math.sin(alpha) - 1.0
+    return factor * best / math.sin(alpha) - 1.0
+
+
+def facet_normal(angle: float) -> tuple[float, float, float]:
+    """The facet's unit normal in body axes for a normal angle (deg from body x, in x-y)."""
+    a = math.radians(angle)
+    return (math.cos(a), math.sin(a), 0.0)
 
 
 def truth_craft(dep: Deployment) -> list[Spacecraft]:
     """The truth's spacecraft: the nominal design, each deputy's facet area times its
     area_factor; facet normal in the body x-y plane."""
     sc = dep.spacecraft
-    a = math.radians(sc.normal_angle)
-    normal = (math.cos(a), math.sin(a), 0.0)
+    normal = facet_normal(sc.normal_angle)
     craft = [Spacecraft(mass=sc.mass, area=sc.area, cd=sc.cd, normal_B=normal)]
     for d in dep.deputy:
         craft.append(
@@ -244,9 +256,13 @@ class Truth(Protocol):
 
     def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]: ...
 
-    def set_area_factor(self, deputy: int, factor: float) -> None:
-        """A panel fault: deputy number ``deputy``'s true facet area becomes ``factor`` times
-        the nominal design's from the next step on."""
+    def set_panel(
+        self, deputy: int, area_factor: float | None = None, normal_angle: float | None = None
+    ) -> None:
+        """A panel fault: from the next step on, deputy number ``deputy``'s true facet area is
+        ``area_factor`` times the nominal design's and/or its facet normal is stuck at
+        ``normal_angle`` (deg in the body x-y plane); None leaves either as it is.  Raises
+        ValueError for a value out of range, RuntimeError where the backend cannot."""
         ...
 
     def close(self) -> None: ...
@@ -271,14 +287,26 @@ class BuiltinTruth:
         self._state = traj[-1]
         return samples, traj
 
-    def set_area_factor(self, deputy: int, factor: float) -> None:
-        if not (math.isfinite(factor) and factor > 0):
-            raise ValueError(f"area factor must be finite and > 0, got {factor}")
-        area = self._dep.spacecraft.area * factor
-        self._craft[deputy + 1] = dataclasses.replace(self._craft[deputy + 1], area=area)
+    def set_panel(
+        self, deputy: int, area_factor: float | None = None, normal_angle: float | None = None
+    ) -> None:
+        check_panel(area_factor, normal_angle)
+        craft = self._craft[deputy + 1]
+        if area_factor is not None:
+            craft = dataclasses.replace(craft, area=self._dep.spacecraft.area * area_factor)
+        if normal_angle is not None:
+            craft = dataclasses.replace(craft, normal_B=facet_normal(normal_angle))
+        self._craft[deputy + 1] = craft
 
     def close(self) -> None:
         pass
+
+
+def describe_panel(area_factor: float | None, normal_angle: float | None) -> str:
+    """A panel fault in words, for logs: "panel area now 0.8 x nominal, normal stuck at 35 deg"."""
+    parts = [] if area_factor is None else [f"area now {area_factor:g} x nominal"]
+    parts += [] if normal_angle is None else [f"normal stuck at {normal_angle:g} deg"]
+    return "panel " + ", ".join(parts)
 
 
 def open_truth(dep: Deployment) -> Truth:

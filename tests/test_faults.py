@@ -400,8 +400,9 @@ def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     mission = start_mission(FAULTED)
     orbit = 5431.0
     mission.wait_for(0.6 * orbit)
-    r = mission.fault("panel", "ddvi", "--area-factor", "1.2")
-    assert r.returncode == 0 and "fault panel ddvi: panel area now 1.2" in r.stdout, r.stderr
+    r = mission.fault("panel", "ddvi", "--area-factor", "1.2", "--stuck-angle", "40")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "fault panel ddvi: panel area now 1.2 x nominal, normal stuck at 40 deg" in r.stdout
     r = mission.fault("bias", "lqr", "--position", "0", "0", "0")
     assert r.returncode == 0 and "fault bias lqr: navigation bias now" in r.stdout, r.stderr
     r = mission.fault("panel", "nobody", "--area-factor", "1.2")
@@ -461,7 +462,8 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
     [
         (["link", "--to", "ctrl-a"], 2, "give --from PUBLISHER and --to SUBSCRIBER"),
         (["kill"], 2, "ddvi fault kill: name the target"),
-        (["panel", "a"], 2, "give --area-factor F > 0"),
+        (["panel", "a"], 2, "give --area-factor F > 0 and/or --stuck-angle DEG in (0, 90)"),
+        (["panel", "a", "--stuck-angle", "95"], 2, "normal_angle must lie in (0, 90) deg"),
         (["bias", "a"], 2, "give --position X Y Z"),
         (["kill", "ctrl-a", "--timeout", "0.5"], 1, "no clock from run 'norun'"),
     ],

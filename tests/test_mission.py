@@ -255,6 +255,25 @@ def test_swarm_and_mismatch_deployments() -> None:
             "fault[0].at_orbits: must lie in [0, run.orbits = 40)",
         ),
         (
+            {"deputy": [{"name": "a"}], "fault": [{"kind": "panel", "deputy": "a"}]},
+            "fault[0]: a panel fault changes area_factor, normal_angle or both: give one",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "fault": [{"deputy": "a", "normal_angle": 95}]},
+            "fault[0]: normal_angle must lie in (0, 90) deg",
+        ),
+        (
+            {"deputy": [{"name": "a"}], "fault": [{"deputy": "a", "normal_angle": "35"}]},
+            "fault[0].normal_angle: expected a number, got '35'",
+        ),
+        (
+            {
+                "deputy": [{"name": "a"}],
+                "fault": [{"kind": "bias", "deputy": "a", "area_factor": 0.5}],
+            },
+            "fault[0]: area_factor and normal_angle belong to panel faults, not 'bias'",
+        ),
+        (
             {"deputy": [{"name": "a"}], "host": [{"netns": "x", "services": ["nav-*"]}]},
             'host: services on other hosts reach the hub through a router: set bus.mode = "client"',
         ),
@@ -362,3 +381,40 @@ def test_learner_pairs_samples_with_the_command_acting_through_a_delayed_link() 
     for t, want in expected.items():
         assert ctrl.input_acting(t) == want, t
     assert Controller(load_deployment(None), "ddvi").actuation_delay == 0.0
+
+
+def test_a_stuck_panel_normal_makes_the_drag_its_geometry_says() -> None:
+    """A panel fault's normal_angle sticks the deputy's facet normal: at zero attitude a facet
+    stuck at 35 deg shows sin 35 / sin 45 of the nominal area to the flow, so it flies exactly
+    as a 45 deg facet with that area factor does, and both leave the unfaulted deputy."""
+    from services.mission import BuiltinTruth, facet_normal
+
+    dep = load_deployment("deployments/rendezvous.toml")  # two deputies on the same orbit
+    truth, whole = BuiltinTruth(dep), BuiltinTruth(dep)
+    truth.set_panel(0, normal_angle=35.0)
+    truth.set_panel(1, area_factor=math.sin(math.radians(35)) / math.sin(math.radians(45)))
+    assert truth._craft[1].normal_B == facet_normal(35.0)
+    assert truth._craft[1].area == dep.spacecraft.area  # the area is left as it was
+    sigma = np.zeros((2, 3))
+    for t_k in (0.0, 60.0, 120.0):
+        _, traj = truth.step(t_k, sigma)
+        _, ref = whole.step(t_k, sigma)
+    stuck, smaller, nominal = traj[-1, 1], traj[-1, 2], ref[-1, 1]
+    assert np.linalg.norm(stuck[:3] - smaller[:3]) < 1e-6
+    assert np.linalg.norm(stuck[:3] - nominal[:3]) > 1e-3
+    for bad in ({}, {"normal_angle": 90.0}, {"area_factor": 0.0}):
+        with pytest.raises(ValueError, match=r"area_factor|normal_angle"):
+            truth.set_panel(0, **bad)
+
+
+def test_holding_margin_after_a_panel_fault() -> None:
+    from services.mission import holding_margin
+
+    dep = load_deployment("deployments/rendezvous.toml")
+    d = dep.deputy[0]
+    # a facet stuck at 80 deg reaches broadside too; one at 10 deg with half its area reaches
+    # 10 + 45.2 deg at most: 0.5 sin(55.2 deg) / sin(45 deg) - 1 < 0
+    assert holding_margin(dep, d, normal_angle=80.0) == pytest.approx(2**0.5 - 1, rel=1e-9)
+    phi = 4 * math.atan(d.attitude_limit)
+    expected = 0.5 * math.sin(math.radians(10) + phi) / math.sin(math.radians(45)) - 1
+    assert holding_margin(dep, d, 0.5, 10.0) == pytest.approx(expected, rel=1e-9)
