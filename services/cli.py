@@ -135,26 +135,17 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     return int(monitor_command(args) or 0)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _learn_arguments(p: argparse.ArgumentParser) -> None:
     from ddvi_core.solve import METHODS
 
-    parser = argparse.ArgumentParser(
-        prog="ddvi", description="Data-driven value iteration for spacecraft rendezvous."
-    )
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("scenarios", help="list the built-in scenarios")
-    p.set_defaults(func=cmd_scenarios)
-    p = sub.add_parser("check", help="check the assumptions of a system (exit 1 if one fails)")
-    p.add_argument("system", help="built-in scenario name or TOML system file")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_check)
-    p = sub.add_parser("learn", help="compute the optimal gains of a system by one method")
     p.add_argument("system", help="built-in scenario name or TOML system file")
     p.add_argument("--method", choices=METHODS, default="ddvi")
     p.add_argument("--seed", type=int, default=None, help="exploration seed (ddvi)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_learn)
-    p = sub.add_parser("run", help="run a deployment: every service its own process on Zenoh")
+
+
+def _run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "deployment",
         nargs="?",
@@ -164,41 +155,83 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default=None, help="override run.output (the runs folder)")
     p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.set_defaults(func=cmd_run)
-    p = sub.add_parser("bench", help="benchmarks, each against its baseline in the same run")
+
+
+def _check_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("system", help="built-in scenario name or TOML system file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_check)
+
+
+def _bench_arguments(p: argparse.ArgumentParser) -> None:
     from benchmarks.run import build_parser as bench_parser
     from benchmarks.run import run as bench_run
 
     bench_parser(p)
     p.set_defaults(func=bench_run)
-    p = sub.add_parser("monitor", help="print decoded messages of a running deployment")
+
+
+def _monitor_arguments(p: argparse.ArgumentParser) -> None:
     from services.monitor import add_monitor_arguments
 
     add_monitor_arguments(p)
     p.set_defaults(func=cmd_monitor)
-    p = sub.add_parser(
-        "sweep", help="the mission over link delays or loss rates: a table and a plot"
-    )
+
+
+def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     from services.sweep import add_sweep_arguments, sweep_command
 
     add_sweep_arguments(p)
     p.set_defaults(func=sweep_command)
-    p = sub.add_parser("fault", help="inject a fault into a running deployment")
+
+
+def _fault_arguments(p: argparse.ArgumentParser) -> None:
     from services.faults import add_fault_arguments, fault_command
 
     add_fault_arguments(p)
     p.set_defaults(func=fault_command)
-    p = sub.add_parser(
-        "netns", help="create or remove the network namespaces of a deployment's [[host]]s"
-    )
+
+
+def _netns_arguments(p: argparse.ArgumentParser) -> None:
     from services.netns import add_netns_arguments, netns_command
 
     add_netns_arguments(p)
     p.set_defaults(func=netns_command)
+
+
+# command: (help, what adds its arguments); the latter imports what the command needs, so a
+# command starts without the others' imports (``ddvi fault`` lands sooner without scipy)
+COMMANDS: dict[str, tuple[str, Any]] = {
+    "scenarios": ("list the built-in scenarios", lambda p: p.set_defaults(func=cmd_scenarios)),
+    "check": ("check the assumptions of a system (exit 1 if one fails)", _check_arguments),
+    "learn": ("compute the optimal gains of a system by one method", _learn_arguments),
+    "run": ("run a deployment: every service its own process on Zenoh", _run_arguments),
+    "bench": ("benchmarks, each against its baseline in the same run", _bench_arguments),
+    "monitor": ("print decoded messages of a running deployment", _monitor_arguments),
+    "sweep": ("the mission over link delays or loss rates: a table and a plot", _sweep_arguments),
+    "fault": ("inject a fault into a running deployment", _fault_arguments),
+    "netns": ("create or remove a deployment's [[host]] network namespaces", _netns_arguments),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``ddvi`` parser; with ``command``, only that command's arguments are built (the
+    others are listed by name and help alone)."""
+    parser = argparse.ArgumentParser(
+        prog="ddvi", description="Data-driven value iteration for spacecraft rendezvous."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (text, add_arguments) in COMMANDS.items():
+        p = sub.add_parser(name, help=text)
+        if command is None or command == name:
+            add_arguments(p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(command if command in COMMANDS else None).parse_args(argv)
     return int(args.func(args))
 
 

@@ -195,8 +195,9 @@ class Fault:
     deputy by the service that owns what fails:
 
     - ``panel``: the drag panel's true area becomes ``area_factor`` times the nominal design's
-      (a partly deployed or damaged panel), and/or its hinge sticks at ``normal_angle`` (deg,
-      the facet normal in the body x-y plane, nominally spacecraft.normal_angle): the panel no
+      (a partly deployed or damaged panel), and/or its hinge sticks at ``normal_angle`` (deg in
+      (0, 90), the facet normal in the body x-y plane, nominally spacecraft.normal_angle); at
+      least one of the two is given.  The panel no
       longer sits where the controllers' model has it, though the body's attitude still turns
       it.  Either may be left out (unchanged); the environment applies it.  The controllers'
       model keeps the nominal panel.
@@ -517,6 +518,8 @@ def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
     > 0, normal_angle in (0, 90) deg, at least one of them given."""
     if area_factor is None and normal_angle is None:
         raise ValueError("a panel fault changes area_factor, normal_angle or both: give one")
+    if isinstance(area_factor, bool) or isinstance(normal_angle, bool):
+        raise ValueError("area_factor and normal_angle are numbers, not true or false")
     if area_factor is not None and not (math.isfinite(area_factor) and area_factor > 0):
         raise ValueError(f"area_factor must be finite and > 0, got {area_factor}")
     if normal_angle is not None and not (0 < normal_angle < 90):
@@ -557,7 +560,7 @@ def _validate_faults(dep: Deployment) -> None:
         if f.kind == "panel" and dep.environment.backend == "basilisk":
             raise DeploymentError(
                 f"{w}: panel faults need the built-in truth (Basilisk 2.12's "
-                "facetDragDynamicEffector cannot change a facet's area once added)"
+                "facetDragDynamicEffector cannot change a facet's area or normal once added)"
             )
 
 

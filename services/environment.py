@@ -140,7 +140,10 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
     def on_fault(msg: Message) -> None:
         sc, params = msg.body["target"], msg.body["params"]
         factor, angle = params.get("area_factor"), params.get("normal_angle")
-        numbers = all(a is None or isinstance(a, float | int) for a in (factor, angle))
+        numbers = all(
+            a is None or (isinstance(a, float | int) and not isinstance(a, bool))
+            for a in (factor, angle)
+        )
         if sc not in deputies or not numbers or (factor is None and angle is None):
             counters["bad_faults"] += 1
             ctx.log("warning", f"fault panel {sc}: refused (needs a deputy of this run and "

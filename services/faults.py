@@ -6,11 +6,11 @@ clock, which also proves the run is there).  Kinds built so far:
 
     kill SERVICE                    the launcher kills the service with SIGKILL, as a crash
                                     would; its [[restart]] policy decides what follows
-    panel DEPUTY [--area-factor F] [--stuck-angle DEG]
+    panel DEPUTY {--area-factor F | --stuck-angle DEG | both}
                                     the environment makes the deputy's true drag-panel area F
                                     times the nominal and/or sticks its hinge with the facet
-                                    normal at DEG in the body x-y plane (the controllers are
-                                    not told)
+                                    normal at DEG in (0, 90) in the body x-y plane (the
+                                    controllers are not told)
     bias DEPUTY --position X Y Z [--velocity X Y Z]
                                     the deputy's navigation bias becomes this (m, m/s)
     link --from PUB --to SUB [--topic T] [--delay S] [--jitter S] [--loss P] [--duplicate P]

@@ -140,9 +140,15 @@ class Launcher:
                     f"factor {d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is "
                     f"{-margin:.0%} below the chief's, so its along-track error will grow"
                 )
-        for f in self.dep.fault:
-            d = self.dep.deputy_named(f.deputy)
-            if f.kind == "panel" and holding_margin(self.dep, d, f.area_factor, f.normal_angle) < 0:
+        panel: dict[str, tuple[float | None, float | None]] = {}  # faults add up in time
+        for f in sorted(self.dep.fault, key=lambda f: f.at_orbits):
+            if f.kind != "panel":
+                continue
+            d, (factor, angle) = self.dep.deputy_named(f.deputy), panel.get(f.deputy, (None, None))
+            factor = f.area_factor if f.area_factor is not None else factor
+            angle = f.normal_angle if f.normal_angle is not None else angle
+            panel[f.deputy] = factor, angle
+            if holding_margin(self.dep, d, factor, angle) < 0:
                 self.say(
                     f"warning: after its panel fault at orbit {f.at_orbits:g} deputy {d.name!r} "
                     "cannot hold a slot: no attitude within its limit makes its drag match the "

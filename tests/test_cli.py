@@ -147,3 +147,20 @@ def test_console_script_runs_as_a_process():
         timeout=60,
     )
     assert r.returncode == 0 and "rendezvous" in r.stdout
+
+
+def test_a_command_imports_only_what_it_needs():
+    """`ddvi fault` parses its arguments without scipy or the monitor (it lands sooner in a
+    running mission); the whole parser, built for no command in particular, still has every
+    command's arguments."""
+    code = (
+        "import sys; from services.cli import build_parser; "
+        "a = build_parser('fault').parse_args(['fault', 'r', 'panel', 'd', '--stuck-angle', '30']);"
+        "print(a.stuck_angle, 'scipy' in sys.modules, 'services.monitor' in sys.modules)"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.split() == ["30.0", "False", "False"], r.stderr
+    from services.cli import build_parser
+
+    args = build_parser().parse_args(["sweep", "delay", "rendezvous", "--values", "0", "60"])
+    assert args.func.__name__ == "sweep_command"

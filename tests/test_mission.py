@@ -385,8 +385,10 @@ def test_learner_pairs_samples_with_the_command_acting_through_a_delayed_link() 
 
 def test_a_stuck_panel_normal_makes_the_drag_its_geometry_says() -> None:
     """A panel fault's normal_angle sticks the deputy's facet normal: at zero attitude a facet
-    stuck at 35 deg shows sin 35 / sin 45 of the nominal area to the flow, so it flies exactly
-    as a 45 deg facet with that area factor does, and both leave the unfaulted deputy."""
+    stuck at 35 deg shows sin 35 / sin 45 of the nominal area to the along-track flow, so it
+    flies as a 45 deg facet with that area factor does (to first order: the flow's small
+    radial part, from J2, meets the two facets differently), and both leave the unfaulted
+    deputy."""
     from services.mission import BuiltinTruth, facet_normal
 
     dep = load_deployment("deployments/rendezvous.toml")  # two deputies on the same orbit
@@ -400,9 +402,9 @@ def test_a_stuck_panel_normal_makes_the_drag_its_geometry_says() -> None:
         _, traj = truth.step(t_k, sigma)
         _, ref = whole.step(t_k, sigma)
     stuck, smaller, nominal = traj[-1, 1], traj[-1, 2], ref[-1, 1]
-    assert np.linalg.norm(stuck[:3] - smaller[:3]) < 1e-6
-    assert np.linalg.norm(stuck[:3] - nominal[:3]) > 1e-3
-    for bad in ({}, {"normal_angle": 90.0}, {"area_factor": 0.0}):
+    departure = np.linalg.norm(stuck[:3] - nominal[:3])
+    assert departure > 1e-3 and np.linalg.norm(stuck[:3] - smaller[:3]) < 1e-2 * departure
+    for bad in ({}, {"normal_angle": 90.0}, {"area_factor": 0.0}, {"normal_angle": True}):
         with pytest.raises(ValueError, match=r"area_factor|normal_angle"):
             truth.set_panel(0, **bad)
 
