@@ -129,6 +129,11 @@ class Controller:
         # learner_exostate): (C, E, F) of the exosystem the learner and L work with
         self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
         self.learned_at: list[float] = []  # every switch to learned gains (s)
+        # while re-learning: the gains flown before the detection (K, L, exosystem, when
+        # learned), flown again if re-learning fails relearn_max_attempts times; and the count
+        self.before_relearning: tuple[np.ndarray, np.ndarray, tuple, float] | None = None
+        self.relearn_failures = 0
+        self.abandoned_at: list[float] = []  # every return to the old gains (s)
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -224,6 +229,9 @@ class Controller:
         lightly damped loop through the limits for orbits).  Returns the log line."""
         det, lrn = self.detector, self.deputy.learning
         self.detections += 1
+        learned = self.learned_at[-1] if self.learned_at else t
+        self.before_relearning = (self.K, self.L, self.exosystem, learned)
+        self.relearn_failures = 0
         self.phase, self.converged, self.detector = "relearning", False, None
         self.source = "initial"  # flying K0 again until it re-learns
         if not self.density_mode:
@@ -278,6 +286,29 @@ class Controller:
         if self.deputy.learning.relearn:
             self.learning_samples.append((t, np.array(x, dtype=float), u, np.array(v, dtype=float)))
         return None
+
+    def learning_failed(self, t: float, why: str) -> str:
+        """A learning attempt at t did not give gains (``why``): explore on and try again
+        ``retry_orbits`` later; but once re-learning has failed ``relearn_max_attempts``
+        times, stop exploring and fly the gains of before the detection again, with the
+        detector off (it would only see the same change again).  Exploring on K0 for ever
+        is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
+        fault's bias (measured: 18.5 km by orbit 50 with a panel stuck at 60 deg, against
+        1.2 km on the old gains).  Returns the log line."""
+        lrn = self.deputy.learning
+        if self.before_relearning is not None:
+            self.relearn_failures += 1
+            if self.relearn_failures >= lrn.relearn_max_attempts:
+                self.K, self.L, self.exosystem, learned = self.before_relearning
+                self.before_relearning = self.relearn_since = None
+                self.phase, self.source, self.converged = "learned", "fallback", True
+                self.abandoned_at.append(t)
+                return (
+                    f"{why}; re-learning abandoned after {self.relearn_failures} attempts: "
+                    f"flying the gains learned at t = {learned:.0f} s again, fault detector off"
+                )
+        self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
+        return f"{why}, exploring on"
 
     def arm_detector(self, since: float) -> str:
         """Fit the one-step predictor on the samples the learner just learned from (those at
@@ -338,18 +369,17 @@ class Controller:
                 translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
             )
         except LearningError as exc:
-            self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
-            return f"learning at t = {t:.0f} s failed, exploring on: {exc}"
+            return self.learning_failed(t, f"learning at t = {t:.0f} s failed: {exc}")
         self.rank, self.rank_needed = r.rank, r.rank_needed
         if not r.converged:
-            self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
-            return f"learning at t = {t:.0f} s did not converge ({r.message}), exploring on"
+            return self.learning_failed(t, f"learning at t = {t:.0f} s did not converge "
+                                        f"({r.message})")  # fmt: skip
         self.K, self.L = r.K, r.L
         self.result = r
         relearned = self.relearn_since is not None
         self.phase, self.source = "learned", "ddvi"
         self.iteration, self.converged = r.iterations, True
-        self.relearn_since = None
+        self.relearn_since = self.before_relearning = None
         self.learned_at.append(t)
         self.learn_info = {
             "wall_s": time.perf_counter() - t0,
@@ -408,7 +438,8 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
     last: tuple[float, np.ndarray, np.ndarray, float] | None = None  # newest collected sample
     # collected samples a step may still fly on (up to its delay behind it)
     recent: collections.deque = collections.deque(maxlen=math.ceil(delay / nav_period) + 8)
-    counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0, "fault_detections": 0}
+    counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0, "fault_detections": 0,
+                "relearning_abandoned": 0}  # fmt: skip
     clock = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}  # time reached, seen up to
     steps = 0
     # a restarted controller flies from the first step it has a sample for (set below)
@@ -487,6 +518,7 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
         if learn_log is not None:
             counters["learn_attempts"] = ctrl.learn_attempts
             counters["fault_detections"] = ctrl.detections
+            counters["relearning_abandoned"] = len(ctrl.abandoned_at)
             ctx.log("info", learn_log, T)
             publish_gains(T)
         ctx.bus.publish(

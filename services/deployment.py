@@ -136,6 +136,7 @@ class Learning:
     relearn: bool = False
     relearn_settle_orbits: float = 2.0  # after a detection, K0 stops the approach: not data
     relearn_window_orbits: float = 10.0  # then explore this long and re-learn from it
+    relearn_max_attempts: int = 5  # re-learning attempts that fail before the old gains return
     detector_bound: float = 100.0  # x the input-equivalent residual's RMS on the learning data
     detector_window_orbits: float = 1.0  # the residual's mean is taken over this window
 
@@ -451,6 +452,8 @@ def validate(dep: Deployment) -> None:
             _positive(f"{w}.learning.{key}", getattr(lrn, key))
         if lrn.relearn_settle_orbits < 0:
             raise DeploymentError(f"{w}.learning.relearn_settle_orbits: must be >= 0")
+        if lrn.relearn_max_attempts < 1:
+            raise DeploymentError(f"{w}.learning.relearn_max_attempts: must be >= 1")
         if len(lrn.K0) != 4:
             raise DeploymentError(f"{w}.learning.K0: expected 4 values (gain on x, y, xdot, ydot)")
         if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):

@@ -326,6 +326,7 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
         "gain_error_vs_lqr": None,
         "learned_at_orbits": None,
         "relearned_at_orbits": [],
+        "relearning_abandoned_at_orbits": [],
         "gains": None,
         "lqr_gains": {"K": s.K_lqr.tolist(), "L": s.L_lqr.tolist()},
         "phase": craft.status[-1].body["phase"] if craft.status else None,
@@ -355,6 +356,12 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
             if switches:
                 out["learned_at_orbits"] = switches[0]
                 out["relearned_at_orbits"] = switches[1:]
+            # every return to the old gains after re-learning failed (Controller.learning_failed)
+            out["relearning_abandoned_at_orbits"] = [
+                r.t / data.period
+                for k, r in enumerate(craft.gains)
+                if r.source == "fallback" and (k == 0 or craft.gains[k - 1].source != "fallback")
+            ]
     return out
 
 

@@ -319,7 +319,7 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
             "sc": Str(),
             "K": Array((None, None)),
             "L": Array((None, None)),
-            "source": Str(("initial", "lqr", "ddvi")),
+            "source": Str(("initial", "lqr", "ddvi", "fallback")),
             "iteration": Int(),
             "converged": Bool(),
         },

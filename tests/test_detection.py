@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from ddvi_core.constants import R_EARTH
 from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
 from ddvi_core.lqr import solve_lqr
 from services.deployment import DeploymentError, deployment_from_table, read_table
@@ -105,6 +106,10 @@ def test_relearn_keys_are_checked() -> None:
     table["deputy"][1]["learning"]["detector_bound"] = -1.0
     with pytest.raises(DeploymentError, match="detector_bound: must be positive"):
         deployment_from_table(table)
+    table = read_table("panel-fault")
+    table["deputy"][1]["learning"]["relearn_max_attempts"] = 0
+    with pytest.raises(DeploymentError, match="relearn_max_attempts: must be >= 1"):
+        deployment_from_table(table)
 
 
 def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> None:
@@ -166,3 +171,38 @@ def test_stuck_panel_is_detected_and_the_learner_switches_to_new_gains() -> None
     assert log[-1].startswith("re-learned at") and ddvi.source == "ddvi"
     assert ddvi.learned_at[1] > detected + 12 * period - dep.run.fsw_period
     assert ddvi.L.shape == (1, 6) and ddvi.detector is not None  # re-armed
+
+
+def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
+    """After ``relearn_max_attempts`` re-learning attempts that give no gains, the controller
+    stops exploring on K0 and flies the gains it learned before the detection again (with the
+    exostate they were learned on), labelled "fallback", detector off; until then each failure
+    schedules a retry ``retry_orbits`` later."""
+    from types import SimpleNamespace
+
+    from services.controller import Controller
+
+    table = read_table("panel-fault")
+    table["deputy"][1]["learning"]["relearn_max_attempts"] = 3
+    dep = deployment_from_table(table)
+    ctrl = Controller(dep, "ddvi")
+    K, L = np.array([[-0.02, 4e-4, -0.9, -9.0]]), np.full((1, 5), 1e-3)
+    ctrl.K, ctrl.L, ctrl.phase, ctrl.source = K, L, "learned", "ddvi"
+    ctrl.learned_at = [1000.0]
+    ctrl.detector = SimpleNamespace(mean=np.array([0.1]), bound=np.array([0.05]), statistic=2.0)
+    t = 2000.0
+    assert "the plant has changed" in ctrl.start_relearning(t)
+    assert ctrl.phase == "relearning" and ctrl.L.shape == (1, 6) and ctrl.source == "initial"
+    period = orbit_period(dep)
+    for attempt in (1, 2, 3):  # no data collected: every attempt fails
+        t = ctrl.next_attempt
+        log = ctrl.learn(t)
+        if attempt < 3:
+            assert log.endswith("exploring on") and ctrl.phase == "relearning"
+            assert ctrl.next_attempt == pytest.approx(t + period)
+    assert "re-learning abandoned after 3 attempts" in log and "learned at t = 1000 s" in log
+    assert ctrl.phase == "learned" and ctrl.source == "fallback" and not ctrl.exploring
+    assert ctrl.K is K and ctrl.L is L and not ctrl.density_mode and ctrl.detector is None
+    assert ctrl.abandoned_at == [t]
+    u = ctrl.command(t, np.zeros(4), np.ones(5), dep.chief.a - R_EARTH)
+    assert np.isfinite(u)  # flies: the exostate is the 5-element one L was learned on
