@@ -293,8 +293,8 @@ class Controller:
         times, stop exploring and fly the gains of before the detection again, with the
         detector off (it would only see the same change again).  Exploring on K0 for ever
         is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
-        fault's bias (measured: 18.5 km by orbit 50 with a panel stuck at 60 deg, against
-        1.2 km on the old gains).  Returns the log line."""
+        fault's bias (measured: 18.5 km off at orbit 50 with a panel stuck at 60 deg, against
+        673 m with the old gains back after 5 attempts).  Returns the log line."""
         lrn = self.deputy.learning
         if self.before_relearning is not None:
             self.relearn_failures += 1
