@@ -14,7 +14,9 @@ one-step predictor, fitted on the data it learned from, and the one-orbit mean o
 input-equivalent residual against the bound it states in its log); on a detection it explores
 again on K0 (phase "relearning"), learns again from the newest ``relearn_window_orbits`` of data
 after ``relearn_settle_orbits``, with the density ratio added to its exostate
-(``Controller.learner_exostate``), switches to the new gains and re-arms the detector.  Every
+(``Controller.learner_exostate``), switches to the new gains and re-arms the detector; after
+``relearn_max_attempts`` failed attempts it flies the gains of before the detection again
+(source "fallback") and watches no more until it is restarted.  Every
 command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
 nav message), which makes the facet's drag linear in u and the same at every altitude.  The
 learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
@@ -126,12 +128,14 @@ class Controller:
         self.detections = 0
         self.relearn_since: float | None = None  # data for re-learning start here
         # after a detected change the learner's exostate gains the density ratio (see
-        # learner_exostate): (C, E, F) of the exosystem the learner and L work with
+        # learner_exostate; a fallback restores the old one): (C, E, F) of the exosystem the
+        # learner and L work with
         self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
         self.learned_at: list[float] = []  # every switch to learned gains (s)
-        # while re-learning: the gains flown before the detection (K, L, exosystem, when
-        # learned), flown again if re-learning fails relearn_max_attempts times; and the count
-        self.before_relearning: tuple[np.ndarray, np.ndarray, tuple, float] | None = None
+        # while re-learning: what was flown before the detection (K, L, exosystem, when
+        # learned, and the collector and rank that learned them), flown again if re-learning
+        # fails relearn_max_attempts times; and the count of failures
+        self.before_relearning: tuple | None = None
         self.relearn_failures = 0
         self.abandoned_at: list[float] = []  # every return to the old gains (s)
 
@@ -153,7 +157,8 @@ class Controller:
 
     @property
     def density_mode(self) -> bool:
-        """The learner's exostate carries the density ratio (since a detected change)."""
+        """The learner's exostate carries the density ratio (after a detected change, unless
+        re-learning fell back to gains learned without it)."""
         return self.exosystem[1].shape[0] > self.problem.q
 
     def learner_exostate(self, v: np.ndarray, altitude: float) -> np.ndarray:
@@ -230,7 +235,15 @@ class Controller:
         det, lrn = self.detector, self.deputy.learning
         self.detections += 1
         learned = self.learned_at[-1] if self.learned_at else t
-        self.before_relearning = (self.K, self.L, self.exosystem, learned)
+        self.before_relearning = (
+            self.K,
+            self.L,
+            self.exosystem,
+            learned,
+            self.collector,
+            self.rank,
+            self.rank_needed,
+        )
         self.relearn_failures = 0
         self.phase, self.converged, self.detector = "relearning", False, None
         self.source = "initial"  # flying K0 again until it re-learns
@@ -299,8 +312,10 @@ class Controller:
         if self.before_relearning is not None:
             self.relearn_failures += 1
             if self.relearn_failures >= lrn.relearn_max_attempts:
-                self.K, self.L, self.exosystem, learned = self.before_relearning
+                (self.K, self.L, self.exosystem, learned, self.collector, self.rank,
+                 self.rank_needed) = self.before_relearning  # fmt: skip
                 self.before_relearning = self.relearn_since = None
+                self.learning_samples.clear()
                 self.phase, self.source, self.converged = "learned", "fallback", True
                 self.abandoned_at.append(t)
                 return (

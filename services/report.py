@@ -546,11 +546,13 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
     ]
     for name, d in summary["deputies"].items():
         learned = [d["learned_at_orbits"], *d.get("relearned_at_orbits", [])]
+        abandoned = d.get("relearning_abandoned_at_orbits", [])
+        gave_up = [f"old gains again at {t:.2f}" for t in abandoned]
         lines.append(
             f"| {name} | {d['controller']} | {_num(d['final_along_track_error_m'])} "
             f"| {_num(d['max_along_track_error_last_orbit_m'])} | {_num(d['final_radial_m'])} "
             f"| {_num(d['max_radial_last_orbit_m'])} | {_num(d['gain_error_vs_lqr'])} "
-            f"| {', '.join(_num(t, '.2f') for t in learned)} "
+            f"| {', '.join([*(_num(t, '.2f') for t in learned), *gave_up])} "
             f"| {d['phase'] or '-'} |"
         )
     m = summary["messages"]

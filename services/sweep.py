@@ -74,6 +74,8 @@ def summary_rows(value: float, summary: dict[str, Any]) -> list[dict[str, Any]]:
     rows = []
     for name, d in summary["deputies"].items():
         ctrl = services.get(f"ctrl-{name}", {})
+        gains = d.get("gains") or {}
+        learned = d["phase"] == "learned" and gains.get("source") != "fallback"
         rows.append(
             {
                 "value": value,
@@ -82,9 +84,11 @@ def summary_rows(value: float, summary: dict[str, Any]) -> list[dict[str, Any]]:
                 "completed": summary["completed"],
                 "final_along_track_error_m": d["final_along_track_error_m"],
                 "max_along_track_error_last_orbit_m": d["max_along_track_error_last_orbit_m"],
-                "learned": d["phase"] == "learned",
+                # flying gains it learned (not K0, and not old gains a failed re-learning
+                # fell back to)
+                "learned": learned,
                 "learned_at_orbits": d["learned_at_orbits"],
-                "gain_error_vs_lqr": d["gain_error_vs_lqr"] if d["phase"] == "learned" else None,
+                "gain_error_vs_lqr": d["gain_error_vs_lqr"] if learned else None,
                 "dropped": ctrl.get("dropped", 0) + env.get("dropped", 0),
                 "delayed": ctrl.get("delayed", 0) + env.get("delayed", 0),
                 "late": env.get("late_commands", 0),

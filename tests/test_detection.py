@@ -191,7 +191,9 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
     ctrl.learned_at = [1000.0]
     ctrl.detector = SimpleNamespace(mean=np.array([0.1]), bound=np.array([0.05]), statistic=2.0)
     t = 2000.0
+    collector = ctrl.collector
     assert "the plant has changed" in ctrl.start_relearning(t)
+    assert ctrl.collector is not collector  # re-learning collects afresh
     assert ctrl.phase == "relearning" and ctrl.L.shape == (1, 6) and ctrl.source == "initial"
     period = orbit_period(dep)
     for attempt in (1, 2, 3):  # no data collected: every attempt fails
@@ -203,6 +205,6 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
     assert "re-learning abandoned after 3 attempts" in log and "learned at t = 1000 s" in log
     assert ctrl.phase == "learned" and ctrl.source == "fallback" and not ctrl.exploring
     assert ctrl.K is K and ctrl.L is L and not ctrl.density_mode and ctrl.detector is None
-    assert ctrl.abandoned_at == [t]
+    assert ctrl.abandoned_at == [t] and ctrl.collector is collector
     u = ctrl.command(t, np.zeros(4), np.ones(5), dep.chief.a - R_EARTH)
     assert np.isfinite(u)  # flies: the exostate is the 5-element one L was learned on

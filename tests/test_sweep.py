@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from services.deployment import deployment_from_table
-from services.sweep import impaired_table, largest_learning_value
+from services.sweep import impaired_table, largest_learning_value, summary_rows
 
 SHORT = """
 [run]
@@ -77,3 +77,19 @@ def test_delay_sweep_runs_each_value(tmp_path: Path) -> None:
     assert int(rows[0]["delayed"]) == 0 and int(rows[1]["delayed"]) > 0
     assert (folder / "sweep.png").stat().st_size > 0
     assert "| delay (s) |" in (folder / "sweep.md").read_text()
+
+
+def test_a_fallback_to_old_gains_is_not_learning() -> None:
+    """A deputy whose re-learning fell back to its old gains is flying learned gains, but not
+    ones learned for the plant it has: the sweep does not count it as learned."""
+    deputy = {
+        "controller": "ddvi", "phase": "learned", "final_along_track_error_m": 673.0,
+        "max_along_track_error_last_orbit_m": 3363.0, "learned_at_orbits": 15.0,
+        "gain_error_vs_lqr": 0.003, "gains": {"source": "fallback"},
+    }  # fmt: skip
+    summary = {"completed": True, "messages": {"services": {}}, "deputies": {"ddvi": deputy}}
+    (row,) = summary_rows(0.0, summary)
+    assert row["learned"] is False and row["gain_error_vs_lqr"] is None
+    deputy["gains"] = {"source": "ddvi"}
+    (row,) = summary_rows(0.0, summary)
+    assert row["learned"] is True and row["gain_error_vs_lqr"] == 0.003
