@@ -197,11 +197,9 @@ class Fault:
 
     - ``panel``: the drag panel's true area becomes ``area_factor`` times the nominal design's
       (a partly deployed or damaged panel), and/or its hinge sticks at ``normal_angle`` (deg in
-      (0, 90), the facet normal in the body x-y plane, nominally spacecraft.normal_angle); at
-      least one of the two is given.  The panel no
-      longer sits where the controllers' model has it, though the body's attitude still turns
-      it.  Either may be left out (unchanged); the environment applies it.  The controllers'
-      model keeps the nominal panel.
+      (0, 90), the facet normal in the body x-y plane, nominally spacecraft.normal_angle), the
+      body's attitude still turning it; at least one of the two is given, the other stays as
+      it was.  The environment applies it; the controllers' model keeps the nominal panel.
     - ``bias``: the navigation solution's bias becomes ``position_bias`` (m, Hill x y z) and
       ``velocity_bias`` (m/s); the deputy's navigation service applies it.
 
@@ -517,12 +515,16 @@ def _validate_restarts(dep: Deployment) -> None:
 
 
 def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
-    """Raise ValueError unless a panel fault's values are in range: area_factor finite and
-    > 0, normal_angle in (0, 90) deg, at least one of them given."""
+    """Raise ValueError unless a panel fault's values are numbers in range (area_factor finite
+    and > 0, normal_angle in (0, 90) deg), at least one of them given: the one check of the
+    deployment file, ``ddvi fault`` and the environment's run-time fault messages."""
     if area_factor is None and normal_angle is None:
         raise ValueError("a panel fault changes area_factor, normal_angle or both: give one")
-    if isinstance(area_factor, bool) or isinstance(normal_angle, bool):
-        raise ValueError("area_factor and normal_angle are numbers, not true or false")
+    for value in (area_factor, normal_angle):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
+            raise ValueError(
+                f"area_factor and normal_angle are numbers, got {value!r} ({type(value).__name__})"
+            )
     if area_factor is not None and not (math.isfinite(area_factor) and area_factor > 0):
         raise ValueError(f"area_factor must be finite and > 0, got {area_factor}")
     if normal_angle is not None and not (0 < normal_angle < 90):

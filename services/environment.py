@@ -34,6 +34,7 @@ import numpy as np
 
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive, watch_alive
+from services.deployment import check_panel
 from services.mission import (
     ReentryError,
     Truth,
@@ -42,7 +43,7 @@ from services.mission import (
     exostate,
     on_grid,
     open_truth,
-    orbit_period,
+    panel_schedule,
 )
 from services.schema import Message
 from services.service import ServiceContext, run_service
@@ -116,11 +117,7 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
     }
     # panel faults: the deployment's, at their times, and the ground's (fault/panel) at the
     # next step; (t, deputy, area factor, normal angle, origin)
-    panel_faults = [
-        (f.at_orbits * orbit_period(dep), f.deputy, f.area_factor, f.normal_angle, "scheduled")
-        for f in dep.fault
-        if f.kind == "panel"
-    ]
+    panel_faults = [(*f, "scheduled") for f in panel_schedule(dep)]
 
     def apply_panel_faults(t_k: float) -> None:
         due = [f for f in panel_faults if f[0] <= t_k + 1e-6]
@@ -140,15 +137,13 @@ def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: s
     def on_fault(msg: Message) -> None:
         sc, params = msg.body["target"], msg.body["params"]
         factor, angle = params.get("area_factor"), params.get("normal_angle")
-        numbers = all(
-            a is None or (isinstance(a, float | int) and not isinstance(a, bool))
-            for a in (factor, angle)
-        )
-        if sc not in deputies or not numbers or (factor is None and angle is None):
+        try:
+            if sc not in deputies:
+                raise ValueError(f"{sc!r} is not a deputy of this run")
+            check_panel(factor, angle)
+        except ValueError as exc:
             counters["bad_faults"] += 1
-            ctx.log("warning", f"fault panel {sc}: refused (needs a deputy of this run and "
-                    f"params.area_factor and/or params.normal_angle; got {msg.body})",
-                    msg.t)  # fmt: skip
+            ctx.log("warning", f"fault panel {sc}: refused ({exc}; got {msg.body})", msg.t)
             return
         factor, angle = (None if a is None else float(a) for a in (factor, angle))
         panel_faults.append((-math.inf, sc, factor, angle, f"from {msg.src}"))

@@ -16,7 +16,7 @@ from services.mission import (
     navigation_state,
     on_grid,
     open_truth,
-    orbit_period,
+    panel_schedule,
 )
 
 
@@ -59,19 +59,12 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     t_k = 0.0
     names = [d.name for d in dep.deputy]
     # panel faults as the environment applies them (navigation-bias faults are not modelled)
-    panels = sorted(
-        (
-            (f.at_orbits * orbit_period(dep), names.index(f.deputy), f.area_factor, f.normal_angle)
-            for f in dep.fault
-            if f.kind == "panel"
-        ),
-        key=lambda f: f[0],
-    )
+    panels = panel_schedule(dep)
     try:
         while t_k < t_end - 1e-6:
             while panels and panels[0][0] <= t_k + 1e-6:
-                _, i, factor, angle = panels.pop(0)
-                truth.set_panel(i, factor, angle)
+                _, sc, factor, angle = panels.pop(0)
+                truth.set_panel(names.index(sc), factor, angle)
             samples, traj = truth.step(t_k, sigma)
             for k, t in enumerate(samples):
                 sample(float(t), traj[k])

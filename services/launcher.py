@@ -29,7 +29,7 @@ from typing import IO
 
 from services.bus import Bus, BusSettings, open_session, queue_handler, wait_for_alive
 from services.deployment import Deployment
-from services.mission import holding_margin
+from services.mission import holding_margin, orbit_period, panel_schedule
 from services.netns import exists as netns_exists
 from services.netns import hub_address
 
@@ -141,16 +141,15 @@ class Launcher:
                     f"{-margin:.0%} below the chief's, so its along-track error will grow"
                 )
         panel: dict[str, tuple[float | None, float | None]] = {}  # faults add up in time
-        for f in sorted(self.dep.fault, key=lambda f: f.at_orbits):
-            if f.kind != "panel":
-                continue
-            d, (factor, angle) = self.dep.deputy_named(f.deputy), panel.get(f.deputy, (None, None))
-            factor = f.area_factor if f.area_factor is not None else factor
-            angle = f.normal_angle if f.normal_angle is not None else angle
-            panel[f.deputy] = factor, angle
-            if holding_margin(self.dep, d, factor, angle) < 0:
+        for t, sc, new_factor, new_angle in panel_schedule(self.dep):
+            factor, angle = panel.get(sc, (None, None))
+            factor = new_factor if new_factor is not None else factor
+            angle = new_angle if new_angle is not None else angle
+            panel[sc] = factor, angle
+            if holding_margin(self.dep, self.dep.deputy_named(sc), factor, angle) < 0:
                 self.say(
-                    f"warning: after its panel fault at orbit {f.at_orbits:g} deputy {d.name!r} "
+                    f"warning: after its panel fault at orbit {t / orbit_period(self.dep):g} "
+                    f"deputy {sc!r} "
                     "cannot hold a slot: no attitude within its limit makes its drag match the "
                     "chief's"
                 )

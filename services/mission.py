@@ -302,6 +302,17 @@ class BuiltinTruth:
         pass
 
 
+def panel_schedule(dep: Deployment) -> list[tuple[float, str, float | None, float | None]]:
+    """The deployment's panel faults in time order: (t (s), deputy, area_factor,
+    normal_angle), as the environment applies them (later faults change only what they give)."""
+    period = orbit_period(dep)
+    faults = [f for f in dep.fault if f.kind == "panel"]
+    return sorted(
+        ((f.at_orbits * period, f.deputy, f.area_factor, f.normal_angle) for f in faults),
+        key=lambda f: f[0],
+    )
+
+
 def describe_panel(area_factor: float | None, normal_angle: float | None) -> str:
     """A panel fault in words, for logs: "panel area now 0.8 x nominal, normal stuck at 35 deg"."""
     parts = [] if area_factor is None else [f"area now {area_factor:g} x nominal"]

@@ -289,6 +289,15 @@ def _last_orbit(t: FloatArray, period: float) -> NDArray[np.bool_]:
     return t >= t[-1] - period
 
 
+def _switches(gains: list[GainRecord], source: str, period: float) -> list[float]:
+    """When (orbits) the gains switched to ``source`` from another, in order."""
+    return [
+        r.t / period
+        for k, r in enumerate(gains)
+        if r.source == source and (k == 0 or gains[k - 1].source != source)
+    ]
+
+
 def _norm_rel(K: FloatArray, K_ref: FloatArray) -> float | None:
     den = float(np.linalg.norm(K_ref))
     if den == 0.0 or K.shape != K_ref.shape:
@@ -348,20 +357,12 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
             out["gain_error_vs_lqr"] = _norm_rel(np.asarray(g.K), s.K_lqr)
             # every switch to learned gains: the first learning, then each re-learning (or,
             # for a restarted controller, its learning from scratch)
-            switches = [
-                r.t / data.period
-                for k, r in enumerate(craft.gains)
-                if r.source == "ddvi" and (k == 0 or craft.gains[k - 1].source != "ddvi")
-            ]
+            switches = _switches(craft.gains, "ddvi", data.period)
             if switches:
                 out["learned_at_orbits"] = switches[0]
                 out["relearned_at_orbits"] = switches[1:]
             # every return to the old gains after re-learning failed (Controller.learning_failed)
-            out["relearning_abandoned_at_orbits"] = [
-                r.t / data.period
-                for k, r in enumerate(craft.gains)
-                if r.source == "fallback" and (k == 0 or craft.gains[k - 1].source != "fallback")
-            ]
+            out["relearning_abandoned_at_orbits"] = _switches(craft.gains, "fallback", data.period)
     return out
 
 
