@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import Any
 
@@ -11,6 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import services.schema as schema_module
 from services.schema import (
     MAX_PAYLOAD,
     REASONS,
@@ -331,3 +333,105 @@ def test_decode_arbitrary_maps(value: dict[str, Any]) -> None:
 @given(_messages())
 def test_decode_perturbed_messages(payload: bytes) -> None:
     _decode_is_total(payload)
+
+
+# --- the compiled validators agree with the field kinds ------------------------------------
+
+
+def _same_message(a: Message, b: Message) -> bool:
+    if (a.schema, a.version, a.seq, a.t, a.src) != (b.schema, b.version, b.seq, b.t, b.src):
+        return False
+    if set(a.body) != set(b.body):
+        return False
+    for key, value in a.body.items():
+        other = b.body[key]
+        if isinstance(value, np.ndarray) or isinstance(other, np.ndarray):
+            if not (
+                isinstance(value, np.ndarray)
+                and isinstance(other, np.ndarray)
+                and value.dtype == other.dtype == np.float64
+                and value.shape == other.shape
+                and np.array_equal(value, other)
+            ):
+                return False
+        elif value != other or type(value) is not type(other):
+            return False
+    return True
+
+
+def _by_field_kinds(call: Any) -> Any:
+    """``call()`` with the compiled validators switched off: what the field kinds say."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(schema_module, "_fast_decode", lambda *_: None)
+        mp.setattr(schema_module, "_COMPILED", {})
+        try:
+            return call()
+        except MessageError as err:
+            return err.reason
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMAS))
+def test_compiled_validators_take_every_sample(name: str) -> None:
+    """A plain, valid message never needs the slow path, either way."""
+    payload = encode(name, SAMPLES[name], seq=1, t=2.0, src="svc")
+    fast = schema_module._fast_decode(payload, name)
+    assert fast is not None
+    assert _same_message(fast, _by_field_kinds(lambda: decode(payload, name)))
+    plain = {k: np.asarray(v, dtype=float) if isinstance(v, list) else v
+             for k, v in SAMPLES[name].items()}  # fmt: skip
+    assert schema_module._COMPILED[name].wire(plain) is not None
+    assert encode(name, plain, seq=1, t=2.0, src="svc") == _by_field_kinds(
+        lambda: encode(name, plain, seq=1, t=2.0, src="svc")
+    )
+
+
+@settings(max_examples=400, deadline=None)
+@given(_messages(), st.sampled_from([None, "nav", ("truth", "exo")]))
+def test_compiled_decode_agrees_with_field_kinds(payload: bytes, expected: Any) -> None:
+    """Whatever the compiled types accept, the field kinds accept as the same message; what
+    they refuse, the field kinds decide (and name)."""
+    reference = _by_field_kinds(lambda: decode(payload, expected))
+    fast = schema_module._fast_decode(payload, expected)
+    if fast is not None:
+        assert isinstance(reference, Message) and _same_message(fast, reference)
+    try:
+        got = decode(payload, expected)
+    except MessageError as err:
+        assert err.reason == reference
+    else:
+        assert isinstance(reference, Message) and _same_message(got, reference)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_messages())
+def test_compiled_encode_agrees_with_field_kinds(payload: bytes) -> None:
+    """encode gives the same bytes, or the same refusal, with or without the compiled types."""
+    msg = msgpack.unpackb(payload, strict_map_key=False)
+    name, body = msg.get("schema"), msg.get("body")
+    if not isinstance(body, dict) or not isinstance(name, str) or name not in SCHEMAS:
+        return
+    for key, value in body.items():  # arrays as a service holds them, where they are arrays
+        if isinstance(SCHEMAS[name].fields.get(key), Array) and isinstance(value, list):
+            with contextlib.suppress(ValueError, TypeError):
+                body[key] = np.asarray(value, dtype=float)
+    reference = _by_field_kinds(lambda: encode(name, body, seq=3, t=4.0, src="svc"))
+    try:
+        got = encode(name, body, seq=3, t=4.0, src="svc")
+    except MessageError as err:
+        assert err.reason == reference
+    else:
+        assert got == reference
+
+
+def test_compiled_encode_takes_numpy_scalars() -> None:
+    body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "altitude": np.float64(3e5),
+            "valid": np.bool_(True)}  # fmt: skip
+    assert schema_module._COMPILED["nav"].wire(body) is not None
+    payload = encode("nav", body, seq=1, t=2.0, src="svc")
+    assert payload == _by_field_kinds(lambda: encode("nav", body, seq=1, t=2.0, src="svc"))
+    assert _by_field_kinds(
+        lambda: encode("clock", {**SAMPLES["clock"], "step": np.bool_(True)}, seq=1, t=2.0,
+                       src="svc")
+    ) == "bad_field"  # fmt: skip
+    with pytest.raises(MessageError, match=r"clock\.step: expected int, got bool"):
+        encode("clock", {**SAMPLES["clock"], "step": np.bool_(True)}, seq=1, t=2.0, src="svc")
