@@ -275,6 +275,9 @@ class Bus:
         self._seq: dict[str, int] = {}
         self._batching = 0  # depth of open ``batch()`` blocks
         self._held: dict[str, list[bytes]] = {}  # topic -> payloads of the open batch
+        self._held_size: dict[str, int] = {}  # topic -> bytes of those payloads
+        self._topics: set[str] = set()  # topics published so far (checked once each)
+        self._sent = 0  # under _pub_lock: publishing takes one lock a message
         self._routes: list[_Route] = []
         self._token: zenoh.LivelinessToken | None = None
         self._sim_time = 0.0
@@ -302,6 +305,8 @@ class Bus:
         for a ``stats`` message."""
         with self._count_lock:
             out = dict(self._counts)
+        with self._pub_lock:
+            out["sent"] = self._sent
         out.update(dict.fromkeys(_LINK_COUNTERS, 0))
         for route in list(self._routes):
             with route.lock:
@@ -338,23 +343,27 @@ class Bus:
         ``seq`` counts per topic from 0. Raises MessageError if the body does not fit its
         schema (nothing is sent and the seq is not consumed).
         """
-        _check_topic(topic)
+        if topic not in self._topics:
+            _check_topic(topic)
         with self._pub_lock:
             if self._closed:
                 raise RuntimeError(f"bus of {self.service} is closed")
             seq = self._seq.get(topic, 0)
             payload = encode(schema, body, seq=seq, t=t, src=self.service)
+            self._topics.add(topic)
             self._seq[topic] = seq + 1
             if self._batching:
                 held = self._held.setdefault(topic, [])
-                size = sum(map(len, held)) + len(payload)
+                size = self._held_size.get(topic, 0) + len(payload)
                 if held and (len(held) >= MAX_BATCH or size > MAX_PAYLOAD // 2):  # packs in one
                     self._put(topic, held)
                     held.clear()
+                    size = len(payload)
                 held.append(payload)
+                self._held_size[topic] = size
             else:
                 self._put(topic, [payload])
-        self._count("sent")
+            self._sent += 1
         return seq
 
     @contextmanager
@@ -372,7 +381,7 @@ class Bus:
             with self._pub_lock:
                 self._batching -= 1
                 if not self._batching and not self._closed:
-                    held, self._held = self._held, {}
+                    held, self._held, self._held_size = self._held, {}, {}
                     for topic, payloads in held.items():
                         if payloads:
                             self._put(topic, payloads)
@@ -467,7 +476,6 @@ class Bus:
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
                 return
-            self._count("received")
             with route.lock:
                 model = self._model(route, message.src, topic)
                 items = (
@@ -481,7 +489,7 @@ class Bus:
                 )
                 # delivered under the lock (handlers only queue), so that what one thread's
                 # offer releases is queued before another thread's pump returns
-                self._deliver(route, items)
+                self._deliver(route, items, received=1)
             if route.observe is not None:
                 route.observe(topic, message)
         except Exception:
@@ -497,10 +505,13 @@ class Bus:
         if n <= 10 or n % 1000 == 0:
             log.warning("%s: rejected %s (%s, #%d): %s", self.service, key, reason, n, text)
 
-    def _deliver(self, route: _Route, items: Iterable[tuple[str, Message]]) -> int:
+    def _deliver(
+        self, route: _Route, items: Iterable[tuple[str, Message]], received: int = 0
+    ) -> int:
         """Hand what a link lets through to the handler (caller holds route.lock), each
         (publisher, topic, seq) once: duplicates and replays are refused here, after the link,
-        as a receiver behind a real network would."""
+        as a receiver behind a real network would.  ``received``: messages to count as
+        received with the delivered ones (one counter update a message)."""
         delivered = 0
         for topic, message in items:
             if (why := route.guards.check(message, topic)) is not None:
@@ -517,7 +528,9 @@ class Bus:
             except Exception:
                 self._count("handler_errors")
                 log.exception("%s: handler failed on %s", self.service, topic)
-        self._count("delivered", delivered)
+        with self._count_lock:
+            self._counts["received"] += received
+            self._counts["delivered"] += delivered
         return delivered
 
     def pump(self, sim_time: float | None = None) -> int:
