@@ -358,23 +358,21 @@ def hill_to_rv(
 # ------------------------------------------------------------------------------------------ MRP
 
 
+# [s~]_ij = -eps_ijk s_k: the cross-product matrix as one contraction (no per-element stacking)
+_NEG_LEVI_CIVITA = np.zeros((3, 3, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _NEG_LEVI_CIVITA[_i, _j, _k], _NEG_LEVI_CIVITA[_j, _i, _k] = -1.0, 1.0
+
+
 def _tilde(s: FloatArray) -> FloatArray:
     """(N, 3) -> (N, 3, 3) cross-product matrices."""
-    z = np.zeros(s.shape[0])
-    return np.stack(
-        (
-            np.stack((z, -s[:, 2], s[:, 1]), axis=1),
-            np.stack((s[:, 2], z, -s[:, 0]), axis=1),
-            np.stack((-s[:, 1], s[:, 0], z), axis=1),
-        ),
-        axis=1,
-    )
+    return np.einsum("ijk,nk->nij", _NEG_LEVI_CIVITA, s)
 
 
 def mrp_to_dcm(sigma: ArrayLike) -> FloatArray:
     """DCM [BN] of the MRP sigma_BN (Schaub & Junkins).
 
-    [BN] = I + (8 [s~]^2 - 4 (1 - |s|^2) [s~]) / (1 + |s|^2)^2.
+    [BN] = I + (8 [s~]^2 - 4 (1 - |s|^2) [s~]) / (1 + |s|^2)^2,  with [s~]^2 = s s^T - |s|^2 I.
 
     Parameters
     ----------
@@ -386,13 +384,44 @@ def mrp_to_dcm(sigma: ArrayLike) -> FloatArray:
     """
     s, single = _stack(sigma, "sigma")
     s2 = np.einsum("ij,ij->i", s, s)[:, None, None]
-    S = _tilde(s)
-    C = np.eye(3) + (8.0 * S @ S - 4.0 * (1.0 - s2) * S) / (1.0 + s2) ** 2
+    S2 = s[:, :, None] * s[:, None, :] - s2 * np.eye(3)
+    C = np.eye(3) + (8.0 * S2 - 4.0 * (1.0 - s2) * _tilde(s)) / (1.0 + s2) ** 2
     return C[0] if single else C
+
+
+def _sheppard_map() -> tuple[FloatArray, FloatArray, NDArray[np.intp]]:
+    """The ten distinct entries of M = 4 beta beta^T (Schaub & Junkins eq. 3.95) are linear in
+    the nine of [C]: U = C.reshape(9) @ W + b, and M[i, j] = U[index[i, j]]."""
+    W, b = np.zeros((9, 10)), np.zeros(10)
+    index = np.zeros((4, 4), dtype=np.intp)
+    entries = [  # (i, j): {flat index of C: coefficient}, constant
+        ((0, 0), {0: 1, 4: 1, 8: 1}, 1.0),  # 1 + tr
+        ((1, 1), {0: 1, 4: -1, 8: -1}, 1.0),  # 1 + 2 C00 - tr
+        ((2, 2), {0: -1, 4: 1, 8: -1}, 1.0),
+        ((3, 3), {0: -1, 4: -1, 8: 1}, 1.0),
+        ((0, 1), {5: 1, 7: -1}, 0.0),  # C12 - C21
+        ((0, 2), {6: 1, 2: -1}, 0.0),  # C20 - C02
+        ((0, 3), {1: 1, 3: -1}, 0.0),  # C01 - C10
+        ((1, 2), {1: 1, 3: 1}, 0.0),  # C01 + C10
+        ((1, 3), {6: 1, 2: 1}, 0.0),  # C20 + C02
+        ((2, 3), {5: 1, 7: 1}, 0.0),  # C12 + C21
+    ]
+    for u, ((i, j), coefficients, constant) in enumerate(entries):
+        for flat, c in coefficients.items():
+            W[flat, u] = c
+        b[u] = constant
+        index[i, j] = index[j, i] = u
+    return W, b, index
+
+
+_SHEPPARD_W, _SHEPPARD_B, _SHEPPARD_INDEX = _sheppard_map()
 
 
 def dcm_to_mrp(dcm: ArrayLike) -> FloatArray:
     """Short-rotation MRP (|sigma| <= 1) of a DCM [BN] (Sheppard's quaternion method).
+
+    The symmetric matrix M = 4 beta beta^T is read off [BN] (Schaub & Junkins eq. 3.95); the
+    row of its largest diagonal entry, over 2 sqrt of that entry, is beta.
 
     Parameters
     ----------
@@ -403,35 +432,11 @@ def dcm_to_mrp(dcm: ArrayLike) -> FloatArray:
     sigma : (3,) or (N, 3).
     """
     C, single = _dcm_stack(dcm, "dcm")
-    tr = np.trace(C, axis1=1, axis2=2)
-    d = np.stack((tr, C[:, 0, 0], C[:, 1, 1], C[:, 2, 2]), axis=1)
-    b2 = np.stack(
-        (
-            (1.0 + tr) / 4.0,
-            (1.0 + 2.0 * d[:, 1] - tr) / 4.0,
-            (1.0 + 2.0 * d[:, 2] - tr) / 4.0,
-            (1.0 + 2.0 * d[:, 3] - tr) / 4.0,
-        ),
-        axis=1,
-    )
-    k = np.argmax(b2, axis=1)
-    p01 = (C[:, 1, 2] - C[:, 2, 1]) / 4.0
-    p02 = (C[:, 2, 0] - C[:, 0, 2]) / 4.0
-    p03 = (C[:, 0, 1] - C[:, 1, 0]) / 4.0
-    p23 = (C[:, 1, 2] + C[:, 2, 1]) / 4.0
-    p31 = (C[:, 2, 0] + C[:, 0, 2]) / 4.0
-    p12 = (C[:, 0, 1] + C[:, 1, 0]) / 4.0
-    bk = np.sqrt(np.max(b2, axis=1))
-    beta = np.empty((C.shape[0], 4))
-    rows = (
-        (bk, p01 / bk, p02 / bk, p03 / bk),
-        (p01 / bk, bk, p12 / bk, p31 / bk),
-        (p02 / bk, p12 / bk, bk, p23 / bk),
-        (p03 / bk, p31 / bk, p23 / bk, bk),
-    )
-    for j in range(4):
-        m = k == j
-        beta[m] = np.stack([c[m] for c in rows[j]], axis=1)
+    n = C.shape[0]
+    U = C.reshape(n, 9) @ _SHEPPARD_W + _SHEPPARD_B
+    k = np.argmax(U[:, :4], axis=1)  # the diagonal of M comes first
+    row = U[np.arange(n)[:, None], _SHEPPARD_INDEX[k]]
+    beta = row / (2.0 * np.sqrt(U[np.arange(n), k]))[:, None]
     beta[beta[:, 0] < 0.0] *= -1.0  # beta0 >= 0  <=>  |sigma| <= 1
     sigma = beta[:, 1:] / (1.0 + beta[:, :1])
     return sigma[0] if single else sigma

@@ -204,7 +204,7 @@ def truth_step(
     (K,) in (t_k, t_k + fsw] and the states there (K, 1 + N, 6)."""
     run = dep.run
     samples = t_k + run.nav_period * np.arange(1, round(run.fsw_period / run.nav_period) + 1)
-    attitudes = np.concatenate([np.eye(3)[None], np.array([mrp_to_dcm(s) for s in sigma])])
+    attitudes = np.concatenate([np.eye(3)[None], mrp_to_dcm(sigma).reshape(-1, 3, 3)])
     env = dep.environment
     try:
         traj = propagate(
