@@ -281,10 +281,6 @@ def _hold(t_src: FloatArray, values: Any, t: FloatArray, default: Any) -> list[A
     return [values[i] if i >= 0 else default for i in k]
 
 
-def _fmt(v: float | None) -> str:
-    return "" if v is None or not math.isfinite(v) else f"{v:.10g}"
-
-
 def _last_orbit(t: FloatArray, period: float) -> NDArray[np.bool_]:
     return t >= t[-1] - period
 
@@ -399,30 +395,48 @@ def _message_summary(data: RunData, monitor: dict[str, int]) -> dict[str, Any]:
 
 
 def write_csv(path: Path, data: RunData, series: list[DeputySeries]) -> int:
-    """Write timeseries.csv; return the number of data rows."""
+    """Write timeseries.csv; return the number of data rows.  Empty cells: no navigation
+    sample at that time, no command yet, a non-finite value."""
     header = ["t", "orbits", "deputy", "controller", *HILL]
     header += [f"nav_{k}" for k in HILL] + ["nav_valid", "sigma3", "phase"]
-    rows: list[tuple[float, int, list[str]]] = []
+    # a row's numbers are formatted in two operations (t and orbits; hill, nav, valid and
+    # sigma3); NaN marks an empty cell ("nan" is no other number's text)
+    head_format, tail_format = ",".join(["%.10g"] * 2), ",".join(["%.10g"] * 14)
+    rows: list[tuple[float, int, str]] = []
     for j, s in enumerate(series):
         craft = data.craft.get(s.deputy.name, CraftData())
+        numbers = np.full((len(s.t), 16), np.nan)
+        numbers[:, 0], numbers[:, 1], numbers[:, 2:8] = s.t, s.t / data.period, s.hill
         nav_t, nav = craft.nav.arrays()
-        nav_at = {float(t): nav[i] for i, t in enumerate(nav_t)}
+        if len(nav_t):
+            k = np.searchsorted(nav_t, s.t)
+            found = k < len(nav_t)
+            found[found] = nav_t[k[found]] == s.t[found]
+            numbers[found, 8:15] = nav[k[found], :7]
         cmd_t, cmd = craft.cmd.arrays()
-        sigma3 = _hold(cmd_t, cmd[:, 2].tolist(), s.t, None)
+        if len(cmd_t):
+            k = np.searchsorted(cmd_t, s.t, side="right") - 1  # the command in force
+            numbers[k >= 0, 15] = cmd[k[k >= 0], 2]
+        numbers[~np.isfinite(numbers)] = np.nan
         st_t = np.array([r.t for r in craft.status])
-        phase = _hold(st_t, [r.body["phase"] for r in craft.status], s.t, "")
-        for i, t in enumerate(s.t):
-            n = nav_at.get(float(t))
-            nav_cols = [""] * 7 if n is None else [_fmt(v) for v in n[:6]] + [str(int(n[6]))]
-            cols = [_fmt(t), _fmt(t / data.period), s.deputy.name, s.deputy.controller]
-            cols += [_fmt(v) for v in s.hill[i]] + nav_cols + [_fmt(sigma3[i]), phase[i]]
-            rows.append((float(t), j, cols))
+        phases = [_csv_cell(r.body["phase"]) for r in craft.status]
+        phase = _hold(st_t, phases, s.t, "")
+        labels = f"{_csv_cell(s.deputy.name)},{_csv_cell(s.deputy.controller)}"
+        for i, v in enumerate(numbers.tolist()):
+            tail = (tail_format % tuple(v[2:])).replace("nan", "")
+            rows.append((v[0], j, f"{head_format % tuple(v[:2])},{labels},{tail},{phase[i]}"))
     rows.sort(key=lambda r: (r[0], r[1]))
     with path.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(r[2] for r in rows)
+        csv.writer(f).writerow(header)
+        f.writelines(r[2] + "\r\n" for r in rows)  # the csv module's line ending
     return len(rows)
+
+
+def _csv_cell(text: str) -> str:
+    """One CSV cell as the csv module writes it (quoted only when it must be)."""
+    if any(c in text for c in ',"\r\n'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 # fixed margins: a layout engine (tight or constrained) costs about as much as drawing
