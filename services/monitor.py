@@ -56,6 +56,7 @@ import logging
 import math
 import queue
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -76,7 +77,7 @@ from services.bus import (
     SequenceGuards,
     open_session,
 )
-from services.report import RunData, ns, write_report
+from services.report import RunData, ns, warm_up, write_report
 from services.schema import (
     REASONS,
     SCHEMAS,
@@ -560,6 +561,9 @@ def main(ctx: ServiceContext) -> int:
     mon = Monitor(ctx)
     status: Status | None = None
     completed = False
+    # the report's imports, on a thread once the mission flies (not during the services'
+    # start-up, which is CPU-bound too); joined before the report
+    warming = threading.Thread(target=warm_up, name="report-warm-up", daemon=True)
     try:
         mon.open_recording()
         assert mon.recorder is not None
@@ -576,6 +580,8 @@ def main(ctx: ServiceContext) -> int:
                 item = None
             if item is not None:
                 mon.handle(item)
+                if mon.data.sim_t > 0.0 and warming.ident is None:
+                    warming.start()
             now = time.monotonic()
             if now - last_flush >= FLUSH_PERIOD:
                 mon.recorder.flush()
@@ -615,6 +621,8 @@ def main(ctx: ServiceContext) -> int:
             status.close(mon.counters)
         if mon.recorder is not None:
             mon.recorder.close()
+    if warming.ident is not None:
+        warming.join()
     summary = write_report(
         Path(ctx.out), mon.data, completed=completed, monitor_counters=mon.counters
     )
