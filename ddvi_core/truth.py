@@ -334,47 +334,41 @@ def propagate(
     nx, ny, nz = normal[:, 0], normal[:, 1], normal[:, 2]
     k_j2 = -1.5 * J2_EARTH * mu * R_EARTH * R_EARTH
 
+    # The right-hand side in scalar Python, craft by craft: numpy's per-call overhead on
+    # 3-vectors made the vectorised form 63 us a call for three craft against 7.5 us here
+    # (and 40 us against 70 us for seventeen); DOP853 calls it 16 times a 60 s step.
+    nx_, ny_, nz_ = nx.tolist(), ny.tolist(), nz.tolist()
+    drag_k = half_bc.tolist()
+
     def rhs(_t: float, y: FloatArray) -> FloatArray:
-        Y = y.reshape(n, 6)
-        x, yy, z = Y[:, 0], Y[:, 1], Y[:, 2]
-        vx, vy, vz = Y[:, 3], Y[:, 4], Y[:, 5]
-        r2 = x * x + yy * yy + z * z
-        rn = np.sqrt(r2)
-        inv_r3 = 1.0 / (r2 * rn)
-        g = -mu * inv_r3
-        out = np.empty((n, 6))
-        out[:, 0] = vx
-        out[:, 1] = vy
-        out[:, 2] = vz
-        ax = g * x
-        ay = g * yy
-        az = g * z
-        if j2:
-            zr2 = z * z / r2
-            k = k_j2 * inv_r3 / r2
-            f_xy = k * (1.0 - 5.0 * zr2)
-            ax = ax + f_xy * x
-            ay = ay + f_xy * yy
-            az = az + k * (3.0 - 5.0 * zr2) * z
-        if use_drag:
-            if hill:
-                # n_N·v with n_N = n_H[0] x_hat + n_H[1] y_hat + n_H[2] z_hat:
-                # x_hat·v = r·v/|r|, y_hat·v = |r × v|/|r|, z_hat·v = 0.
-                hx = yy * vz - z * vy
-                hy = z * vx - x * vz
-                hz = x * vy - yy * vx
-                hn = np.sqrt(hx * hx + hy * hy + hz * hz)
-                nv = (nx * (x * vx + yy * vy + z * vz) + ny * hn) / rn
-            else:
-                nv = nx * vx + ny * vy + nz * vz
-            kd = half_bc * np.exp((r_ref - rn) * inv_h) * np.maximum(nv, 0.0)
-            ax = ax + kd * vx
-            ay = ay + kd * vy
-            az = az + kd * vz
-        out[:, 3] = ax
-        out[:, 4] = ay
-        out[:, 5] = az
-        return out.ravel()
+        Y = y.tolist()
+        out = [0.0] * (6 * n)
+        for i in range(n):
+            o = 6 * i
+            x, yy, z, vx, vy, vz = Y[o : o + 6]
+            r2 = x * x + yy * yy + z * z
+            rn = math.sqrt(r2)
+            inv_r3 = 1.0 / (r2 * rn)
+            f_xy = f_z = -mu * inv_r3
+            if j2:
+                zr2 = z * z / r2
+                k = k_j2 * inv_r3 / r2
+                f_xy, f_z = f_xy + k * (1.0 - 5.0 * zr2), f_z + k * (3.0 - 5.0 * zr2)
+            ax, ay, az = f_xy * x, f_xy * yy, f_z * z
+            if use_drag:
+                if hill:
+                    # n_N·v with n_N = n_H[0] x_hat + n_H[1] y_hat + n_H[2] z_hat:
+                    # x_hat·v = r·v/|r|, y_hat·v = |r × v|/|r|, z_hat·v = 0.
+                    hx, hy, hz = yy * vz - z * vy, z * vx - x * vz, x * vy - yy * vx
+                    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+                    nv = (nx_[i] * (x * vx + yy * vy + z * vz) + ny_[i] * hn) / rn
+                else:
+                    nv = nx_[i] * vx + ny_[i] * vy + nz_[i] * vz
+                if nv > 0.0:
+                    kd = drag_k[i] * math.exp((r_ref - rn) * inv_h) * nv
+                    ax, ay, az = ax + kd * vx, ay + kd * vy, az + kd * vz
+            out[o : o + 6] = (vx, vy, vz, ax, ay, az)
+        return np.array(out)
 
     atol = np.tile(np.array([atol_pos] * 3 + [atol_vel] * 3), n)
     sol = solve_ivp(
