@@ -452,7 +452,10 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
     summary = json.loads((out / "summary.json").read_text())
     env = summary["messages"]["services"]["environment"]
     assert env["dropped"] > 50
-    assert 0 <= env["missing_commands"] - env["dropped"] <= 2  # the last steps' may be lost too
+    # every dropped command is a missed step, except the one for the final time, which no step
+    # flies (whether its drop is counted depends on it arriving before the final stats); the
+    # last steps' commands may be lost too, on the way out
+    assert -1 <= env["missing_commands"] - env["dropped"] <= 2
     assert summary["messages"]["services"]["ctrl-ddvi"]["delayed"] > 0
     assert summary["completed"] is True
 
