@@ -336,7 +336,7 @@ def propagate(
 
     # The right-hand side in scalar Python, craft by craft: numpy's per-call overhead on
     # 3-vectors made the vectorised form 63 us a call for three craft against 7.5 us here
-    # (and 40 us against 70 us for seventeen); DOP853 calls it 16 times a 60 s step.
+    # (and 37 us against 55 us for seventeen); DOP853 calls it 16 times a 60 s step.
     nx_, ny_, nz_ = nx.tolist(), ny.tolist(), nz.tolist()
     drag_k = half_bc.tolist()
 
