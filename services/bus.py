@@ -275,7 +275,6 @@ class Bus:
         self._seq: dict[str, int] = {}
         self._batching = 0  # depth of open ``batch()`` blocks
         self._held: dict[str, list[bytes]] = {}  # topic -> payloads of the open batch
-        self._held_size: dict[str, int] = {}  # topic -> bytes of those payloads
         self._topics: set[str] = set()  # topics published so far (checked once each)
         self._sent = 0  # under _pub_lock: publishing takes one lock a message
         self._routes: list[_Route] = []
@@ -354,13 +353,11 @@ class Bus:
             self._seq[topic] = seq + 1
             if self._batching:
                 held = self._held.setdefault(topic, [])
-                size = self._held_size.get(topic, 0) + len(payload)
+                size = sum(map(len, held)) + len(payload)
                 if held and (len(held) >= MAX_BATCH or size > MAX_PAYLOAD // 2):  # packs in one
                     self._put(topic, held)
                     held.clear()
-                    size = len(payload)
                 held.append(payload)
-                self._held_size[topic] = size
             else:
                 self._put(topic, [payload])
             self._sent += 1
@@ -381,7 +378,7 @@ class Bus:
             with self._pub_lock:
                 self._batching -= 1
                 if not self._batching and not self._closed:
-                    held, self._held, self._held_size = self._held, {}, {}
+                    held, self._held = self._held, {}
                     for topic, payloads in held.items():
                         if payloads:
                             self._put(topic, payloads)

@@ -414,9 +414,7 @@ def write_csv(path: Path, data: RunData, series: list[DeputySeries]) -> int:
             found[found] = nav_t[k[found]] == s.t[found]
             numbers[found, 8:15] = nav[k[found], :7]
         cmd_t, cmd = craft.cmd.arrays()
-        if len(cmd_t):
-            k = np.searchsorted(cmd_t, s.t, side="right") - 1  # the command in force
-            numbers[k >= 0, 15] = cmd[k[k >= 0], 2]
+        numbers[:, 15] = _hold(cmd_t, cmd[:, 2].tolist(), s.t, np.nan)  # the command in force
         numbers[~np.isfinite(numbers)] = np.nan
         st_t = np.array([r.t for r in craft.status])
         phases = [_csv_cell(r.body["phase"]) for r in craft.status]
@@ -433,7 +431,8 @@ def write_csv(path: Path, data: RunData, series: list[DeputySeries]) -> int:
 
 
 def _csv_cell(text: str) -> str:
-    """One CSV cell as the csv module writes it (quoted only when it must be)."""
+    """One CSV cell as the csv module writes it (quoted only when it must be): the rows are
+    written as lines, since csv.writer took 0.26 s of the 40-orbit mission's 0.39 s."""
     if any(c in text for c in ',"\r\n'):
         return '"' + text.replace('"', '""') + '"'
     return text

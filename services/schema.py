@@ -615,7 +615,7 @@ class _Compiled:
     """One schema's msgspec body type, and the two fast paths over it."""
 
     def __init__(self, spec: Schema) -> None:
-        self.name, self.version = spec.name, spec.version
+        self.version = spec.version
         self.fields = tuple(spec.fields)
         self.keys = frozenset(spec.fields)
         self.arrays = tuple(
@@ -629,19 +629,15 @@ class _Compiled:
         self.decoder = msgspec.msgpack.Decoder(self.body)
 
     def arrays_of(self, body: dict[str, Any]) -> dict[str, Any] | None:
-        """``body`` with its array fields as float64 ndarrays; None if one is ragged."""
+        """``body`` with its array fields as float64 ndarrays; None if one is ragged, or an
+        empty nested list (whose inner dimensions the field kind rebuilds)."""
         for name, shape in self.arrays:
-            value = body[name]
-            if len(shape) == 1:
-                body[name] = np.array(value, dtype=np.float64)
-                continue
             try:
-                arr = np.array(value, dtype=np.float64)
+                body[name] = np.array(body[name], dtype=np.float64)
             except ValueError:
                 return None
-            if arr.ndim != len(shape):  # an empty nested list: the field kind rebuilds it
+            if body[name].ndim != len(shape):
                 return None
-            body[name] = arr
         return body
 
     def wire(self, body: Any) -> dict[str, Any] | None:
