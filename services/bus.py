@@ -19,7 +19,8 @@ Threading
 ---------
 Zenoh calls subscriber callbacks on its own threads. ``Bus`` decodes, counts and link-models the
 message on that thread, then calls the handler there too, so a handler must be quick and thread
-safe: ``queue_handler(q)`` hands messages to the service's main loop through a ``queue.Queue``.
+safe: ``queue_handler(q)`` hands messages to the service's main loop through a
+``queue.SimpleQueue``.
 Counters and sequence numbers are guarded by locks; nothing raised in a callback reaches zenoh.
 """
 
@@ -28,6 +29,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import queue
 import re
 import threading
@@ -38,6 +40,11 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from typing import Any
+
+# One zenoh receive worker a process instead of two: a service has one or two links to read,
+# and on a two-core machine each extra thread only adds wake-ups (read when the first session
+# opens; a ZENOH_RUNTIME already set wins)
+os.environ.setdefault("ZENOH_RUNTIME", "(rx: (worker_threads: 1))")
 
 import zenoh
 
@@ -145,11 +152,12 @@ def open_session(settings: BusSettings) -> Iterator[zenoh.Session]:
         session.close()
 
 
-def queue_handler(q: queue.Queue[tuple[str, Message]]) -> Handler:
+def queue_handler(q: queue.SimpleQueue[Any] | queue.Queue[Any]) -> Handler:
     """A handler that puts ``(topic, message)`` on ``q`` for the service's main loop.
 
-    Use an unbounded queue: a full bounded queue raises into the bus, which counts it as a
-    handler error and loses the message.
+    Use an unbounded queue, preferably a ``queue.SimpleQueue`` (in C: a put is a fraction of a
+    ``queue.Queue``'s): a full bounded queue raises into the bus, which counts it as a handler
+    error and loses the message.
     """
 
     def handler(topic: str, message: Message) -> None:

@@ -420,7 +420,7 @@ _PRESENCE = "presence"  # inbox tag: the navigation service came or went
 def main(ctx: ServiceContext) -> int:
     sc = ctx.name.removeprefix("ctrl-")
     ctrl = Controller(ctx.deployment, sc)
-    inbox: queue.Queue = queue.Queue()
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
 
     def seen(_topic: str, msg: Message) -> None:
         inbox.put((_SEEN, msg))
@@ -437,7 +437,7 @@ def main(ctx: ServiceContext) -> int:
         presence.undeclare()
 
 
-def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.Queue) -> int:
+def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.SimpleQueue) -> int:
     sc = ctrl.sc
     run = ctx.deployment.run
     fsw, nav_period = run.fsw_period, ctrl.deputy.navigation.period

@@ -65,7 +65,7 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
     dep = ctx.deployment
     run = dep.run
     deputies = [d.name for d in dep.deputy]
-    inbox: queue.Queue = queue.Queue()
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
     # every command that reaches this host is also observed after its link has delivered, held
     # or dropped it: the lock-step wait ends when the command it waits for is accounted for
     ctx.bus.subscribe(
@@ -97,7 +97,9 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         presence.undeclare()
 
 
-def _propagate(ctx: ServiceContext, truth: Truth, inbox: queue.Queue, present: set[str]) -> int:
+def _propagate(
+    ctx: ServiceContext, truth: Truth, inbox: queue.SimpleQueue, present: set[str]
+) -> int:
     dep = ctx.deployment
     run = dep.run
     deputies = [d.name for d in dep.deputy]

@@ -144,7 +144,7 @@ def fault_command(args: argparse.Namespace) -> int:
         if acting is not None and not wait_for_alive(session, run, [acting], 2.0):
             print(f"ddvi fault: service {acting!r} is not alive in run {run!r}", file=sys.stderr)
             return 1
-        answers: queue.Queue = queue.Queue()
+        answers: queue.SimpleQueue = queue.SimpleQueue()
         with Bus(session, run, f"ground-{os.getpid()}") as bus:
             bus.subscribe("log/*", queue_handler(answers), expected_schema="log")
             time.sleep(0.2)  # let the subscription reach the service before it answers

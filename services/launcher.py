@@ -187,7 +187,7 @@ class Launcher:
                     "starting the environment"
                 )
                 with Bus(session, self.run, "launcher") as bus:
-                    faults: queue.Queue = queue.Queue()
+                    faults: queue.SimpleQueue = queue.SimpleQueue()
                     bus.subscribe("fault/kill", queue_handler(faults), expected_schema="fault")
                     self.start("environment")
                     return self._supervise(started, bus, faults)
@@ -228,7 +228,7 @@ class Launcher:
         self.kills += 1
         self._event(bus, "warning", f"fault kill {target}: killed (SIGKILL) at t = {t:.0f} s", t)
 
-    def _supervise(self, started: float, bus: Bus, faults: queue.Queue) -> int:
+    def _supervise(self, started: float, bus: Bus, faults: queue.SimpleQueue) -> int:
         env, monitor = self.procs["environment"].popen, self.procs["monitor"].popen
         sim_t = 0.0
         while env.poll() is None:

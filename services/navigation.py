@@ -33,7 +33,7 @@ def main(ctx: ServiceContext) -> int:
     rng = np.random.default_rng([ctx.deployment.run.seed, cfg.seed, sum(map(ord, sc))])
     sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
     bias = np.array(cfg.position_bias + cfg.velocity_bias)
-    inbox: queue.Queue = queue.Queue()
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
     # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
     # two subscriptions interleave arbitrarily, and samples are paired by time below
     for craft in ("chief", sc):
