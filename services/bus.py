@@ -456,8 +456,8 @@ class Bus:
         return model
 
     def _on_sample(self, route: _Route, sample: zenoh.Sample) -> None:
-        """Zenoh callback: must never raise.  A batch is taken apart and each of its messages
-        goes through ``_on_message`` as if it had come alone."""
+        """Zenoh callback: must never raise.  A batch is taken apart: each of its messages is
+        decoded, offered to its link and delivered as if it had come alone, in its order."""
         try:
             key = str(sample.key_expr)
             payload = sample.payload.to_bytes()
@@ -466,40 +466,49 @@ class Bus:
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
                 return
-            for part in parts or (payload,):
-                self._on_message(route, key, part)
+            self._on_messages(route, key, parts or (payload,))
         except Exception:
             self._count("handler_errors")
             log.exception("%s: error in bus callback", self.service)
 
-    def _on_message(self, route: _Route, key: str, payload: bytes) -> None:
-        """One message off the wire: decode, link, deliver (see ``subscribe``)."""
-        try:
-            topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+    def _on_messages(self, route: _Route, key: str, payloads: Iterable[bytes]) -> None:
+        """Messages off the wire, one sample's: decode, link, deliver, observe (see
+        ``subscribe``); the route's lock and the counters are taken once for them all."""
+        topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+        messages = []
+        for payload in payloads:
             try:
-                message = decode(payload, route.expected)
+                messages.append(decode(payload, route.expected))
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
-                return
-            with route.lock:
-                model = self._model(route, message.src, topic)
-                items = (
-                    [(topic, message)]
-                    if model is None
-                    else model.offer(
-                        (topic, message),
-                        self._now(model),
-                        sent=message.t if model.clock == "sim" else None,
-                    )
-                )
-                # delivered under the lock (handlers only queue), so that what one thread's
-                # offer releases is queued before another thread's pump returns
-                self._deliver(route, items, received=1)
-            if route.observe is not None:
-                route.observe(topic, message)
-        except Exception:
-            self._count("handler_errors")
-            log.exception("%s: error in bus callback", self.service)
+        if not messages:
+            return
+        with route.lock:
+            items: list[tuple[str, Message]] = []
+            for message in messages:
+                try:
+                    model = self._model(route, message.src, topic)
+                    if model is None:
+                        items.append((topic, message))
+                    else:
+                        items += model.offer(
+                            (topic, message),
+                            self._now(model),
+                            sent=message.t if model.clock == "sim" else None,
+                        )
+                except Exception:
+                    self._count("handler_errors")
+                    log.exception("%s: error in bus callback", self.service)
+            # delivered under the lock (handlers only queue), so that what one thread's offer
+            # releases is queued before another thread's pump returns
+            self._deliver(route, items, received=len(messages))
+        if route.observe is not None:
+            for message in messages:
+                try:
+                    route.observe(topic, message)
+                except Exception:
+                    self._count("handler_errors")
+                    log.exception("%s: observer failed on %s", self.service, topic)
 
     def _reject(self, key: str, reason: str, text: str) -> None:
         """Count a refused message by reason; log the first ten of each and every 1000th."""
