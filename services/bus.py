@@ -29,7 +29,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import queue
 import re
 import threading
@@ -40,11 +39,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from typing import Any
-
-# One zenoh receive worker a process instead of two: a service has one or two links to read,
-# and on a two-core machine each extra thread only adds wake-ups (read when the first session
-# opens; a ZENOH_RUNTIME already set wins)
-os.environ.setdefault("ZENOH_RUNTIME", "(rx: (worker_threads: 1))")
 
 import zenoh
 
@@ -476,39 +470,44 @@ class Bus:
         ``subscribe``); the route's lock and the counters are taken once for them all."""
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
         messages = []
-        for payload in payloads:
+        for payload in payloads:  # one bad part costs that part only
             try:
                 messages.append(decode(payload, route.expected))
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
+            except Exception:
+                self._count("handler_errors")
+                log.exception("%s: error decoding on %s", self.service, topic)
         if not messages:
             return
-        with route.lock:
-            items: list[tuple[str, Message]] = []
-            for message in messages:
-                try:
-                    model = self._model(route, message.src, topic)
-                    if model is None:
-                        items.append((topic, message))
-                    else:
-                        items += model.offer(
-                            (topic, message),
-                            self._now(model),
-                            sent=message.t if model.clock == "sim" else None,
-                        )
-                except Exception:
-                    self._count("handler_errors")
-                    log.exception("%s: error in bus callback", self.service)
-            # delivered under the lock (handlers only queue), so that what one thread's offer
-            # releases is queued before another thread's pump returns
-            self._deliver(route, items, received=len(messages))
-        if route.observe is not None:
-            for message in messages:
-                try:
-                    route.observe(topic, message)
-                except Exception:
-                    self._count("handler_errors")
-                    log.exception("%s: observer failed on %s", self.service, topic)
+        try:
+            with route.lock:
+                items: list[tuple[str, Message]] = []
+                for message in messages:
+                    try:
+                        model = self._model(route, message.src, topic)
+                        if model is None:
+                            items.append((topic, message))
+                        else:
+                            items += model.offer(
+                                (topic, message),
+                                self._now(model),
+                                sent=message.t if model.clock == "sim" else None,
+                            )
+                    except Exception:
+                        self._count("handler_errors")
+                        log.exception("%s: error in bus callback", self.service)
+                # delivered under the lock (handlers only queue), so that what one thread's
+                # offer releases is queued before another thread's pump returns
+                self._deliver(route, items, received=len(messages))
+        finally:  # whatever happened above, each accepted message is accounted for
+            if route.observe is not None:
+                for message in messages:
+                    try:
+                        route.observe(topic, message)
+                    except Exception:
+                        self._count("handler_errors")
+                        log.exception("%s: observer failed on %s", self.service, topic)
 
     def _reject(self, key: str, reason: str, text: str) -> None:
         """Count a refused message by reason; log the first ten of each and every 1000th."""

@@ -13,6 +13,10 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 2 cores: BLAS threads would fight services
+# One zenoh receive worker a service instead of two: on two cores each extra thread only adds
+# wake-ups (read when the session opens; a ZENOH_RUNTIME already set wins). Not in the launcher,
+# which as the hub (or router) reads every service's link.
+os.environ.setdefault("ZENOH_RUNTIME", "(rx: (worker_threads: 1))")
 
 import argparse
 import logging
