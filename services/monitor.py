@@ -105,11 +105,13 @@ FINAL_WAIT = 5.0  # s to wait for the other services' final stats after the fina
 FINAL_GRACE = 0.25  # s to keep recording once every service has finished
 STOP_DRAIN = 1.0  # s to keep recording what is already queued after SIGTERM
 # The monitor is the ground: it records and reports, and no step of the flight loop waits on it.
-# On two cores its Python threads yield the CPU to the flight services (zenoh's own threads,
-# started before, keep their priority, so samples are still received and stamped on time), and
-# it takes what arrived in batches instead of waking for every sample.
+# On two cores its main thread yields the CPU to the flight services, and takes what arrived in
+# batches instead of waking for every sample. The threads that receive and stamp samples
+# (zenoh's, and the subscriber's callback thread) keep their priority: a slowed receiver would
+# fill zenoh's queue to the callback and hold up every publisher (congestion control BLOCK).
 NICENESS = 10
 BATCH_PERIOD = 0.005  # s the main loop lets samples gather once one has come
+BATCH_MAX = 512  # samples a batch at most: flushing, the status and a stop are looked at between
 MAX_RAW = 64 * 1024  # bytes of a rejected payload kept in the recording
 CHUNK_SIZE = 256 * 1024
 RECORDING = "recording.mcap"
@@ -560,10 +562,10 @@ def _subscribe(
 
 def main(ctx: ServiceContext) -> int:
     inbox: queue.SimpleQueue[tuple[int, str, Any, int]] = queue.SimpleQueue()
-    os.nice(NICENESS)  # this thread and those started from here on (the callback's)
     # Subscribe before anything else: the launcher starts the other services once it sees
     # this process alive.
     subs = _subscribe(ctx.bus.session, ctx.run, inbox)
+    os.nice(NICENESS)  # this thread and those it starts (the callback thread is started)
     ctx.ready()
     mon = Monitor(ctx)
     status: Status | None = None
@@ -588,12 +590,13 @@ def main(ctx: ServiceContext) -> int:
             idle = item is None  # nothing came for 0.05 s
             if item is not None:
                 time.sleep(BATCH_PERIOD)
-                while item is not None:  # everything queued now (item is None after)
-                    mon.handle(item)
+                mon.handle(item)
+                for _ in range(BATCH_MAX - 1):
                     try:
-                        item = inbox.get_nowait()
+                        next_item = inbox.get_nowait()
                     except queue.Empty:
-                        item = None
+                        break
+                    mon.handle(next_item)
                 if mon.data.sim_t > 0.0 and warming.ident is None:
                     warming.start()
             now = time.monotonic()
