@@ -54,9 +54,9 @@ INPUTS = {
     "ctrl-ddvi": ["nav/ddvi/state", "exo/state", "clock"],
     "monitor": ["**"],
 }
-# s of simulation time: every service is still up to count what it got. The intruder starts a
-# wall second after the first clock (gossip) and needs several rounds before this: at 3.6 ms a
-# 60 s step (measured), 10,000 s went by within that second; 40,000 s leaves it about 1.5 s
+# s of simulation time: every service is still up to count what it got. The intruder starts
+# about half a wall second after the first clock (gossip) and needs several rounds before this:
+# at 3.6 ms a 60 s step (measured), 10,000 s went by within a second
 STOP_AT = 40000.0
 
 
@@ -124,10 +124,14 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(
     rng = np.random.default_rng(7)
     sub = mission.session.declare_subscriber("ddvi/**", on_sample)
     try:
-        # every service's subscriptions reach this session by gossip: give them a moment
-        # after the mission has started, so that each one gets every garbage message
+        # every service's subscriptions reach this session by gossip: once it is linked to
+        # every service and the hub, give them a moment, so that each gets every garbage message
         mission.wait_for(0.0)
-        time.sleep(1.0)
+        deadline = time.monotonic() + 10.0
+        while len(mission.session.info.peers_zid()) < len(INPUTS) + 1:
+            assert time.monotonic() < deadline, mission.session.info.peers_zid()
+            time.sleep(0.05)
+        time.sleep(0.5)
         while mission.launcher.poll() is None and mission.t < STOP_AT:
             with lock:
                 targets = dict(seen)
