@@ -565,7 +565,7 @@ def main(ctx: ServiceContext) -> int:
     # Subscribe before anything else: the launcher starts the other services once it sees
     # this process alive.
     subs = _subscribe(ctx.bus.session, ctx.run, inbox)
-    os.nice(NICENESS)  # this thread and those it starts (the callback thread is started)
+    os.nice(NICENESS)  # this thread and those it starts later; not the callback's, started
     ctx.ready()
     mon = Monitor(ctx)
     status: Status | None = None
