@@ -274,10 +274,9 @@ class Bus:
         self._pub_lock = threading.RLock()  # seq counters and publishers
         self._count_lock = threading.Lock()  # counters only; never held while calling out
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._seq: dict[str, int] = {}
+        self._seq: dict[str, int] = {}  # topic -> next seq (its keys: topics checked once)
         self._batching = 0  # depth of open ``batch()`` blocks
         self._held: dict[str, list[bytes]] = {}  # topic -> payloads of the open batch
-        self._topics: set[str] = set()  # topics published so far (checked once each)
         self._sent = 0  # under _pub_lock: publishing takes one lock a message
         self._routes: list[_Route] = []
         self._token: zenoh.LivelinessToken | None = None
@@ -344,14 +343,13 @@ class Bus:
         ``seq`` counts per topic from 0. Raises MessageError if the body does not fit its
         schema (nothing is sent and the seq is not consumed).
         """
-        if topic not in self._topics:
+        if topic not in self._seq:
             _check_topic(topic)
         with self._pub_lock:
             if self._closed:
                 raise RuntimeError(f"bus of {self.service} is closed")
             seq = self._seq.get(topic, 0)
             payload = encode(schema, body, seq=seq, t=t, src=self.service)
-            self._topics.add(topic)
             self._seq[topic] = seq + 1
             if self._batching:
                 held = self._held.setdefault(topic, [])
