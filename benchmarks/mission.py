@@ -32,6 +32,7 @@ from typing import Any
 
 import psutil
 
+from benchmarks.floor import run_floor
 from services.deployment import load_deployment, read_table, write_deployment
 from services.inprocess import run_in_process
 from services.mission import duration
@@ -48,7 +49,10 @@ class _PeakMemory:
         self._thread.start()
 
     def _poll(self, period: float) -> None:
-        while not self._stop.wait(period):
+        # the first reads come sooner (0.1, 0.2, 0.4... s): a run of a second is read too
+        wait = min(0.1, period)
+        while not self._stop.wait(wait):
+            wait = min(2 * wait, period)
             total = 0
             try:
                 procs = [self.root, *self.root.children(recursive=True)]
@@ -112,7 +116,8 @@ def _row(
 
 
 def run_single(path: Path) -> dict[str, Any]:
-    """The same deployment stepped in one fresh process (imports included), no bus."""
+    """The same deployment stepped in one fresh process (imports included), no bus; with the
+    loop's wall time and each service's share of it (``run_in_process``'s timing)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "benchmarks.mission", str(path)],
@@ -121,12 +126,21 @@ def run_single(path: Path) -> dict[str, Any]:
         text=True,
     )
     memory = _PeakMemory(proc.pid)
-    _, err = proc.communicate()
+    out, err = proc.communicate()
     wall = time.perf_counter() - t0
     peak = memory.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"in-process run of {path} failed: {err[-2000:]}")
-    return {"wall_s": wall, "pss_bytes": peak}
+    return {"wall_s": wall, "pss_bytes": peak, **json.loads(out.strip().splitlines()[-1])}
+
+
+def run_single_loop(path: str) -> dict[str, Any]:
+    """What ``python -m benchmarks.mission DEPLOYMENT`` prints: the one-process run's loop
+    (``loop_s``) and its ``timing``."""
+    timing: dict[str, float] = {}
+    t0 = time.perf_counter()
+    run_in_process(load_deployment(path), timing=timing)
+    return {"loop_s": time.perf_counter() - t0, "timing": timing}
 
 
 def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
@@ -136,9 +150,22 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
         table["run"]["orbits"] = 4.0
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
         path = write_deployment(table, Path(tmp), "mission")
-        sim = duration(load_deployment(str(path)))
+        dep = load_deployment(str(path))
+        sim = duration(dep)
         single = run_single(path)
         dist = run_distributed(path)
+    # the same processes, messages and work on plain zenoh: what a bus layer, services and
+    # monitor that cost nothing would leave
+    timing = single["timing"]
+    steps = int(timing.pop("steps"))
+    floor = run_floor(
+        [d.name for d in dep.deputy],
+        steps,
+        samples=round(dep.run.fsw_period / dep.run.nav_period),
+        dt=dep.run.nav_period,
+        spins={name: spent / steps for name, spent in timing.items()},
+    )
+    loop = dist["mission_wall_s"]
     orbits = table["run"]["orbits"]
     base = "one process, no bus"
     ratio = dist["wall_s"] / single["wall_s"]
@@ -162,6 +189,22 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
             single["pss_bytes"] / 1e6,
             base,
             dist["pss_bytes"] / single["pss_bytes"],
+        ),
+        _row(
+            f"loop only ({steps:,} lock-step steps), against the floor",
+            "s",
+            loop,
+            floor["loop_s"],
+            "floor: plain zenoh, same work",
+            loop / floor["loop_s"],
+        ),
+        _row(
+            "floor's loop, against one process's loop",
+            "s",
+            floor["loop_s"],
+            single["loop_s"],
+            "one process, no bus: loop",
+            floor["loop_s"] / single["loop_s"],
         ),
     ]
 
@@ -264,4 +307,4 @@ def bench_basilisk(quick: bool = False) -> list[dict[str, Any]]:
 
 if __name__ == "__main__":
     # the single-process baseline, in its own process so its memory is its own
-    run_in_process(load_deployment(sys.argv[1]))
+    print(json.dumps(run_single_loop(sys.argv[1])))

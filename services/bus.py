@@ -122,6 +122,12 @@ class BusSettings:
         return BusSettings(mode=mode, listen=list(self.connect), connect=[])
 
 
+SERVICE_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+"""A service's ``ZENOH_RUNTIME``: one receive worker instead of two, since on two cores each
+extra thread only adds wake-ups (zenoh reads the variable when a session opens; one already set
+wins).  Not the launcher's, which as the hub (or router) reads every service's link."""
+
+
 def zenoh_config(settings: BusSettings) -> zenoh.Config:
     """The zenoh configuration for ``settings``: explicit endpoints, no multicast scouting."""
     config = zenoh.Config()

@@ -4,6 +4,8 @@ against (benchmarks) and a quick way to study the learner on truth data."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ddvi_core.constants import R_EARTH
@@ -20,9 +22,20 @@ from services.mission import (
 )
 
 
-def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
+def run_in_process(
+    dep: Deployment, noise_seed: int = 0, timing: dict[str, float] | None = None
+) -> dict[str, dict]:
     """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
-    the controller object (final gains, phase) and its learning log lines."""
+    the controller object (final gains, phase) and its learning log lines.
+
+    ``timing``, if given, is filled with the wall seconds of each service's share of the work:
+    ``environment`` (the truth), ``nav-<deputy>`` (navigation states, noise) and
+    ``ctrl-<deputy>`` (the controller, learning included), and ``steps``, the number of
+    flight-software steps (the benchmarks' lock-step floor spends them in its processes)."""
+    clock = time.perf_counter
+    spent = dict.fromkeys(
+        ["environment", *(f"{p}-{d.name}" for d in dep.deputy for p in ("nav", "ctrl"))], 0.0
+    )
     run = dep.run
     fsw, t_end = run.fsw_period, duration(dep)
     truth = open_truth(dep)
@@ -37,6 +50,7 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
             nav = dep.deputy[i].navigation
             if not on_grid(t, nav.period):
                 continue
+            t0 = clock()
             x6 = navigation_state(dep, d, X[0], X[i + 1])
             noisy = (
                 x6
@@ -45,7 +59,10 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
                 * np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3)
             )
             altitude = float(np.linalg.norm(X[i + 1, :3])) - R_EARTH
+            t1 = clock()
             outcome = c.on_sample(t, noisy[list(IN_PLANE)], v, altitude)
+            spent[f"nav-{d.name}"] += t1 - t0
+            spent[f"ctrl-{d.name}"] += clock() - t1
             if outcome.learn_log is not None:
                 out[d.name]["log"].append(outcome.learn_log)
             if outcome.fsw:
@@ -60,17 +77,23 @@ def run_in_process(dep: Deployment, noise_seed: int = 0) -> dict[str, dict]:
     names = [d.name for d in dep.deputy]
     # panel faults as the environment applies them (navigation-bias faults are not modelled)
     panels = panel_schedule(dep)
+    steps = 0
     try:
         while t_k < t_end - 1e-6:
             while panels and panels[0][0] <= t_k + 1e-6:
                 _, sc, factor, angle = panels.pop(0)
                 truth.set_panel(names.index(sc), factor, angle)
+            t0 = clock()
             samples, traj = truth.step(t_k, sigma)
+            spent["environment"] += clock() - t0
             for k, t in enumerate(samples):
                 sample(float(t), traj[k])
             t_k += fsw
+            steps += 1
     finally:
         truth.close()
+    if timing is not None:
+        timing.update(spent, steps=steps)
     for d, c in zip(dep.deputy, ctrls, strict=True):
         rec = out[d.name]
         rec["t"], rec["x"], rec["u"] = (np.array(rec[k]) for k in ("t", "x", "u"))

@@ -13,10 +13,6 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 2 cores: BLAS threads would fight services
-# One zenoh receive worker a service instead of two: on two cores each extra thread only adds
-# wake-ups (read when the session opens; a ZENOH_RUNTIME already set wins). Not in the launcher,
-# which as the hub (or router) reads every service's link.
-os.environ.setdefault("ZENOH_RUNTIME", "(rx: (worker_threads: 1))")
 
 import argparse
 import logging
@@ -29,10 +25,13 @@ from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from typing import Any
 
-from services.bus import Bus, BusSettings, open_session, wait_for_alive
+from services.bus import SERVICE_ZENOH_RUNTIME, Bus, BusSettings, open_session, wait_for_alive
 from services.deployment import Deployment, DeploymentError, load_deployment
 from services.links import LINK_PARAMETERS, LinkRule, LinkSpec, impairs_truth
 from services.schema import Message
+
+# zenoh reads it when a session opens: every service's, not the launcher's (SERVICE_ZENOH_RUNTIME)
+os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)
 
 log = logging.getLogger("ddvi")
 

@@ -1,5 +1,6 @@
 """The benchmarks' own measuring tools: the learning benchmark's search for the fewest
-iterations to a gain tolerance, and the mission benchmark's memory of a process tree."""
+iterations to a gain tolerance, the mission benchmark's memory of a process tree, the
+one-process run's split of its work among the services, and the lock-step floor."""
 
 from __future__ import annotations
 
@@ -8,9 +9,13 @@ import sys
 
 import pytest
 
+from benchmarks.floor import run_floor
 from benchmarks.learning import ddvi_after, iterations_to
 from benchmarks.mission import _PeakMemory
 from ddvi_core.systems import BUILTIN_SYSTEMS
+from services.deployment import deployment_from_table, read_table
+from services.inprocess import run_in_process
+from services.mission import duration
 
 
 def test_iterations_to_finds_where_the_gain_error_crosses_the_tolerance() -> None:
@@ -44,3 +49,29 @@ def test_peak_memory_counts_a_descendant_once() -> None:
     parent.wait()
     peak = memory.stop()
     assert 200e6 < peak < 400e6
+
+
+def test_one_process_timing_splits_its_work_among_the_services() -> None:
+    table = read_table(None)
+    table["run"]["orbits"] = 1.0
+    dep = deployment_from_table(table)
+    timing: dict[str, float] = {}
+    run_in_process(dep, timing=timing)
+    shares = {"environment", "nav-lqr", "ctrl-lqr", "nav-ddvi", "ctrl-ddvi"}
+    assert set(timing) == shares | {"steps"}
+    assert timing["steps"] == round(duration(dep) / dep.run.fsw_period)
+    assert all(timing[name] > 0 for name in shares)
+
+
+def test_floor_carries_every_message_and_spends_the_work_given() -> None:
+    """Three deputies, 40 steps: the monitor has every sample, and the environment's 5 ms a
+    step of work are in the loop's time."""
+    floor = run_floor(["a", "b", "c"], 40, samples=3, spins={"environment": 0.005})
+    assert floor["steps"] == 40
+    assert floor["received"] == floor["expected"] == 40 * (3 + 3 + 2 * 3) + 1
+    assert floor["loop_s"] >= 40 * 0.005
+
+
+def test_floor_refuses_an_empty_mission() -> None:
+    with pytest.raises(ValueError, match="at least one deputy"):
+        run_floor([], 10)
