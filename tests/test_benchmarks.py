@@ -63,15 +63,19 @@ def test_one_process_timing_splits_its_work_among_the_services() -> None:
     assert all(timing[name] > 0 for name in shares)
 
 
-def test_floor_carries_every_message_and_spends_the_work_given() -> None:
-    """Three deputies, 40 steps: the monitor has every sample, and the environment's 5 ms a
-    step of work are in the loop's time."""
-    floor = run_floor(["a", "b", "c"], 40, samples=3, spins={"environment": 0.005})
+@pytest.mark.parametrize("layer", ["plain", "bus"])
+def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
+    """Three deputies, 40 steps: the monitor has every sample, and each step waits for the
+    environment's 3 ms of work and then a navigation's 3 ms (lock-step: in series)."""
+    spins = {"environment": 0.003, "nav-b": 0.003}
+    floor = run_floor(["a", "b", "c"], 40, samples=3, spins=spins, layer=layer)
     assert floor["steps"] == 40
-    assert floor["received"] == floor["expected"] == 40 * (3 + 3 + 2 * 3) + 1
-    assert floor["loop_s"] >= 40 * 0.005
+    assert floor["received"] == 40 * (3 + 3 + 2 * 3) + 1
+    assert floor["loop_s"] >= 40 * 0.006
 
 
-def test_floor_refuses_an_empty_mission() -> None:
+def test_floor_refuses_an_empty_mission_and_an_unknown_layer() -> None:
     with pytest.raises(ValueError, match="at least one deputy"):
         run_floor([], 10)
+    with pytest.raises(ValueError, match="layer 'zmq' is not one of"):
+        run_floor(["a"], 10, layer="zmq")
