@@ -2,7 +2,11 @@
 
 Throughput: the default deployment through ``ddvi run`` (every service its own process on
 Zenoh, start-up and report included) against ``services.inprocess.run_in_process`` (the same
-truth, navigation and controller code stepped in one process, no bus).
+truth, navigation and controller code stepped in one process, no bus).  Then the loops alone
+(the monitor's first to last message; the one-process loop) and the lock-step floor
+(``benchmarks.floor``): the same processes and messages, each process spending its share of
+the one-process run's work, on plain zenoh and on the project's Bus, which splits the
+distributed loop's cost into the architecture's, the bus layer's and the services' own.
 
 Swarm scaling: 1, 2, 4, 8, 16 LQR deputies holding along-track slots 1 km apart, each with its
 own navigation and controller process; wall time per simulated orbit (the monitor's first to
