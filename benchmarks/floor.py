@@ -63,9 +63,10 @@ def _key(topic: str) -> str:
 
 
 def _spin(seconds: float) -> None:
-    """Busy for ``seconds`` of wall time: the work a process would do, holding its core."""
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
+    """Busy for ``seconds`` of this thread's CPU time: the work a process would do (time it
+    spends preempted is not work done)."""
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
         pass
 
 
@@ -76,7 +77,7 @@ def _body(kind: str, sc: str, t: float, vector: Callable[[list[float]], Any]) ->
         r, v, s = vector([6.6e6, 1.0, 2.0]), vector([1.0, 7.7e3, 3.0]), vector([0.0, 0.0, 0.0])
         return {"sc": sc, "r_N": r, "v_N": v, "sigma_BN": s}
     if kind == "exo":
-        return {"v": vector([1.0, 0.0]), "phase": 0.0}
+        return {"v": vector([1.0, 0.5, 0.5, 0.5, 0.5]), "phase": 0.0}  # exostate's (5,)
     if kind == "nav":
         return {"sc": sc, "x_hill": vector([1.0] * 6), "altitude": 3e5, "valid": True}
     if kind == "cmd":
@@ -152,7 +153,8 @@ class _Step:
         return [k * self.period + (i + 1) * self.dt for i in range(self.samples)]
 
     def of(self, t: float) -> int:
-        return round((t - self.dt) // self.period)
+        """The step of a sample at ``t``."""
+        return (round(t / self.dt) - 1) // self.samples
 
 
 def _environment(
@@ -161,7 +163,8 @@ def _environment(
 ) -> dict[str, Any]:  # fmt: skip
     inbox: queue.SimpleQueue[Arrival] = queue.SimpleQueue()
     wire.subscribe("cmd/*/att", "cmd", inbox.put)
-    stop = session.declare_publisher(_key(STOP))
+    stop = session.declare_publisher(_key(STOP), congestion_control=zenoh.CongestionControl.BLOCK)
+    token = session.liveliness().declare_token(_key("alive/environment"))  # subscribed
     others = ["monitor", *(f"{p}-{d}" for d in deputies for p in ("nav", "ctrl"))]
     try:
         if set(others) - wait_for_alive(session, RUN, others, START_TIMEOUT):
@@ -183,15 +186,18 @@ def _environment(
         stop.put(b"")
         return {"loop_s": loop, "steps": steps}
     finally:
+        token.undeclare()
         stop.undeclare()
 
 
 def _relay(
     wire: _Plain | _ProjectBus, session: zenoh.Session, name: str, inputs: list[tuple[str, str]],
-    publish: Callable[[int], None], grid: _Step, spin: float,
+    receiver: str, publish: Callable[[int], None], grid: _Step, spin: float,
 ) -> dict[str, Any]:  # fmt: skip
     """A navigation or controller process: once every input message of a step has come, spin
-    and ``publish(step)``; clock messages are taken and ignored; end on the stop."""
+    and ``publish(step)``; clock messages are taken and ignored; end on the stop.  It declares
+    itself alive once its ``receiver`` is (so that its first put reaches it), and the
+    environment starts once everyone is."""
     inbox: queue.SimpleQueue[Arrival] = queue.SimpleQueue()
     for topic, kind in [*inputs, ("clock", "clock")]:
         wire.subscribe(topic, kind, inbox.put)
@@ -199,9 +205,13 @@ def _relay(
     have: dict[int, int] = {}
     need = len(inputs) * grid.samples
     try:
+        if not wait_for_alive(session, RUN, [receiver], START_TIMEOUT):
+            raise RuntimeError(f"floor: {name} does not see {receiver}")
         token = session.liveliness().declare_token(_key(f"alive/{name}"))
+        wait = 2 * START_TIMEOUT  # the others' start-up, then a step at most
         while True:
-            topic, t, n = inbox.get(timeout=STEP_TIMEOUT)
+            topic, t, n = inbox.get(timeout=wait)
+            wait = STEP_TIMEOUT
             if topic == STOP:
                 break
             if topic == "clock":
@@ -224,15 +234,23 @@ def _monitor(session: zenoh.Session, expected: int) -> dict[str, Any]:
     received = 0
     try:
         token = session.liveliness().declare_token(_key("alive/monitor"))
-        deadline = None  # after the stop, what other publishers sent may still be on its way
-        while received < expected and (deadline is None or time.monotonic() < deadline):
+        # after the stop, what other publishers put before it may still be on its way: wait
+        # for all of it (and a little more, for any extra) or 2 s
+        deadline = None
+        wait = 3 * START_TIMEOUT  # the others' start-up, then a step at most
+        while deadline is None or time.monotonic() < deadline:
             try:
-                key = inbox.get(timeout=STEP_TIMEOUT if deadline is None else 0.1)
+                key = inbox.get(timeout=wait if deadline is None else 0.05)
             except queue.Empty:
+                if deadline is None:
+                    raise RuntimeError(f"floor: the monitor had nothing for {wait} s") from None
                 continue
+            wait = STEP_TIMEOUT
             received += 1
             if key == _key(STOP):
                 deadline = time.monotonic() + 2.0
+            if deadline is not None and received >= expected:
+                deadline = min(deadline, time.monotonic() + 0.1)
         token.undeclare()
         return {"received": received}
     finally:
@@ -260,17 +278,20 @@ def _role(args: argparse.Namespace) -> dict[str, Any]:
                 return _environment(wire, session, deputies, steps, grid, args.spin)
             kind, sc = args.role.split("-", 1)
             if kind == "nav":
-                inputs = [("truth/chief", "truth"), (f"truth/{sc}", "truth")]
+                inputs, receiver = (
+                    [("truth/chief", "truth"), (f"truth/{sc}", "truth")],
+                    f"ctrl-{sc}",
+                )
 
                 def publish(k: int) -> None:
                     wire.publish(f"nav/{sc}/state", "nav", sc, grid.times(k))
             else:
-                inputs = [(f"nav/{sc}/state", "nav"), ("exo/state", "exo")]
+                inputs, receiver = [(f"nav/{sc}/state", "nav"), ("exo/state", "exo")], "environment"
 
                 def publish(k: int) -> None:
                     wire.publish(f"cmd/{sc}/att", "cmd", sc, grid.times(k)[-1:])
 
-            return _relay(wire, session, args.role, inputs, publish, grid, args.spin)
+            return _relay(wire, session, args.role, inputs, receiver, publish, grid, args.spin)
         finally:
             wire.close()
 
@@ -291,7 +312,7 @@ def run_floor(
         raise ValueError(f"run_floor: layer {layer!r} is not one of {LAYERS}")
     spins = spins or {}
     hub = f"tcp/127.0.0.1:{free_port()}"
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "ZENOH_RUNTIME": SERVICE_ZENOH_RUNTIME}
+    env = {"ZENOH_RUNTIME": SERVICE_ZENOH_RUNTIME, **os.environ, "OPENBLAS_NUM_THREADS": "1"}
     names = ["monitor", *(f"{p}-{d}" for d in deputies for p in ("nav", "ctrl")), "environment"]
     common = ["--hub", hub, "--layer", layer, "--deputies", *deputies, "--steps", str(steps),
               "--samples", str(samples), "--dt", str(dt)]  # fmt: skip
@@ -315,19 +336,26 @@ def run_floor(
         }
         results = {}
         try:
-            for name, proc in procs.items():
-                out, _ = proc.communicate(timeout=START_TIMEOUT + steps * STEP_TIMEOUT)
-                if proc.returncode != 0:
-                    raise RuntimeError(f"floor: {name} failed ({proc.returncode})")
-                results[name] = json.loads(out.strip().splitlines()[-1])
+            # the first process to fail ends the floor (the others would wait for it)
+            while len(results) < len(procs):
+                for name, proc in procs.items():
+                    if name in results or proc.poll() is None:
+                        continue
+                    out = proc.stdout.read() if proc.stdout else ""
+                    if proc.returncode != 0 or not out.strip():
+                        raise RuntimeError(f"floor: {name} failed ({proc.returncode})")
+                    results[name] = json.loads(out.strip().splitlines()[-1])
+                time.sleep(0.05)
         finally:
             for proc in procs.values():
                 if proc.poll() is None:
                     proc.kill()
                     proc.wait()
     received, expected = results["monitor"]["received"], _expected(deputies, steps)
-    if received != expected:  # congestion control BLOCK: nothing may be lost
-        raise RuntimeError(f"floor: the monitor received {received} of {expected} samples")
+    if received != expected:  # congestion control BLOCK: nothing lost, nothing extra
+        raise RuntimeError(f"floor: the monitor received {received} samples, not {expected}")
+    if unfinished := [n for n, r in results.items() if r.get("pending")]:
+        raise RuntimeError(f"floor: {unfinished} ended with steps half received")
     return {**results["environment"], "received": received}
 
 

@@ -74,6 +74,13 @@ def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
     assert floor["loop_s"] >= 40 * 0.006
 
 
+def test_floor_ends_when_one_of_its_processes_fails() -> None:
+    """A deputy name zenoh cannot put under: its processes fail at their first declaration,
+    and the floor says which instead of waiting for them."""
+    with pytest.raises(RuntimeError, match=r"floor: (nav-x\*|ctrl-x\*|environment) failed"):
+        run_floor(["x*"], 5)
+
+
 def test_floor_refuses_an_empty_mission_and_an_unknown_layer() -> None:
     with pytest.raises(ValueError, match="at least one deputy"):
         run_floor([], 10)
