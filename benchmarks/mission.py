@@ -3,7 +3,8 @@
 Throughput: the default deployment through ``ddvi run`` (every service its own process on
 Zenoh, start-up and report included) against ``services.inprocess.run_in_process`` (the same
 truth, navigation and controller code stepped in one process, no bus).  Then the loops alone
-(the monitor's first to last message; the one-process loop) and the lock-step floor
+(the first to the last clock message the monitor recorded; the one-process loop) and the
+lock-step floor
 (``benchmarks.floor``): the same processes and messages, each process spending its share of
 the one-process run's work, on plain zenoh and on the project's Bus, which splits the
 distributed loop's cost into the architecture's, the bus layer's and the services' own.
@@ -11,7 +12,7 @@ distributed loop's cost into the architecture's, the bus layer's and the service
 Swarm scaling: 1, 2, 4, 8, 16 LQR deputies holding along-track slots 1 km apart, each with its
 own navigation and controller process; wall time per simulated orbit (the monitor's first to
 last message) and the peak memory of every process of the run together (sampled by psutil
-every second).  The baseline is the one-deputy run of the same sweep.
+every second, sooner at first).  The baseline is the one-deputy run of the same sweep.
 
 Memory is the proportional set size (PSS) summed over the processes: each page counted once,
 a shared one split among the processes that map it.  A sum of resident sizes (RSS) would count
@@ -170,8 +171,8 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
         sim = duration(dep)
         single = run_single(path)
         dist = run_distributed(path)
-    # the same processes, messages and work on plain zenoh: what a bus layer, services and
-    # monitor that cost nothing would leave
+    # the same processes, messages and work on plain zenoh and on the project's Bus: what
+    # services and a monitor that cost nothing beyond the one-process work would leave
     timing = single["timing"]
     steps = int(timing.pop("steps"))
     floors = {
