@@ -26,6 +26,7 @@ Counters and sequence numbers are guarded by locks; nothing raised in a callback
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -196,24 +197,31 @@ class SequenceGuard:
     from 0 again: the window starts over."""
 
     def __init__(self, window: int = REPLAY_WINDOW) -> None:
+        if window < 1:
+            raise ValueError(f"SequenceGuard.window: expected >= 1, got {window}")
         self.window = window
         self.highest = -1
         self.newest_t = -math.inf
-        self.seen: set[int] = set()
+        self._seen = 0  # bit k: highest - k was accepted (k < window), as RFC 4303's bitmap
+        self._mask = (1 << window) - 1
 
     def check(self, seq: int, t: float) -> str | None:
-        if seq <= self.highest and t > self.newest_t:
-            self.highest, self.seen = -1, set()  # the publisher restarted
-        elif seq <= self.highest - self.window:
+        highest = self.highest
+        if seq <= highest and t > self.newest_t:
+            highest, self._seen = -1, 0  # the publisher restarted
+        elif seq <= highest - self.window:
             return "stale"
-        if seq in self.seen:
-            return "duplicate"
-        self.seen.add(seq)
-        self.newest_t = max(self.newest_t, t)
-        if seq > self.highest:
+        if seq > highest:
+            ahead = seq - highest
+            self._seen = ((self._seen << ahead) | 1) & self._mask if ahead < self.window else 1
             self.highest = seq
-            if len(self.seen) > 2 * self.window:
-                self.seen = {s for s in self.seen if s > seq - self.window}
+        else:
+            bit = 1 << (highest - seq)
+            if self._seen & bit:
+                return "duplicate"
+            self._seen |= bit
+        if t > self.newest_t:
+            self.newest_t = t
         return None
 
 
@@ -246,6 +254,7 @@ class _Route:
     # re-entrant: a handler may change the bus's link rules (a run-time link fault)
     lock: threading.RLock = field(default_factory=threading.RLock)
     subscriber: Any = None
+    key: str | None = None  # the one key a subscription without wildcards hears
 
     def all_models(self) -> list[LinkModel]:
         return ([self.link] if self.link is not None else []) + list(self.models.values())
@@ -423,8 +432,10 @@ class Bus:
         if self._closed:
             raise RuntimeError(f"bus of {self.service} is closed")
         route = _Route(handler, expected_schema, link, observe, index=len(self._routes))
+        if "*" not in topic_pattern:
+            route.key = self.prefix + topic_pattern
         route.subscriber = self.session.declare_subscriber(
-            self.prefix + topic_pattern, lambda sample: self._on_sample(route, sample)
+            self.prefix + topic_pattern, functools.partial(self._on_sample, route)
         )
         self._routes.append(route)
 
@@ -457,7 +468,7 @@ class Bus:
         """Zenoh callback: must never raise.  A batch is taken apart: each of its messages is
         decoded, offered to its link and delivered as if it had come alone, in its order."""
         try:
-            key = str(sample.key_expr)
+            key = route.key or str(sample.key_expr)  # a string per sample costs
             payload = sample.payload.to_bytes()
             try:
                 parts = unpack_batch(payload)  # also refuses an oversized payload
@@ -487,10 +498,11 @@ class Bus:
         try:
             with route.lock:
                 items: list[tuple[str, Message]] = []
+                direct = route.link is None and not self._rules  # no link to choose per message
                 for message in messages:
                     try:
-                        model = self._model(route, message.src, topic)
-                        if model is None:
+                        model = None if direct else self._model(route, message.src, topic)
+                        if model is None or model.transparent:
                             items.append((topic, message))
                         else:
                             items += model.offer(

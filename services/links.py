@@ -142,6 +142,11 @@ class LinkModel:
         """Number of items currently held (delayed or waiting for a swap)."""
         return len(self._held) + (self._waiting is not None)
 
+    @property
+    def transparent(self) -> bool:
+        """A perfect link holding nothing: ``offer`` would hand the item straight back."""
+        return self._perfect and not self._held and self._waiting is None
+
     def _push(self, due: float, rank: float, item: Any) -> None:
         self._tiebreak += 1
         heapq.heappush(self._held, (due, rank, self._tiebreak, item))
@@ -151,8 +156,8 @@ class LinkModel:
 
         ``sent``: when the item left its publisher, if not ``now`` (a lock-step receiver's clock
         need not be the sender's: the latency then runs from the message's own time)."""
-        if self._perfect and not self._held and self._waiting is None:
-            return [item]  # a perfect link: no draw can change anything
+        if self.transparent:
+            return [item]  # no draw can change anything
         spec, rng = self.spec, self._rng
         if rng.random() < spec.loss:
             self._counters["dropped"] += 1

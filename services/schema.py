@@ -573,6 +573,8 @@ def unpack_batch(payload: bytes) -> list[bytes] | None:
 _DBL_MAX = sys.float_info.max
 _Finite = Annotated[float, msgspec.Meta(ge=-_DBL_MAX, le=_DBL_MAX)]  # NaN and inf fail both
 _ENCODER = msgspec.msgpack.Encoder()
+_FLOAT64 = np.dtype(np.float64)
+_PLAIN = frozenset({str, float, int, bool, list, dict})  # what needs no numpy conversion
 
 
 def _compiled_type(field: Field) -> Any:
@@ -617,7 +619,6 @@ class _Compiled:
     def __init__(self, spec: Schema) -> None:
         self.version = spec.version
         self.fields = tuple(spec.fields)
-        self.keys = frozenset(spec.fields)
         self.arrays = tuple(
             (name, f.shape) for name, f in spec.fields.items() if isinstance(f, Array)
         )
@@ -627,10 +628,29 @@ class _Compiled:
             forbid_unknown_fields=True,
         )
         self.decoder = msgspec.msgpack.Decoder(self.body)
+        # the whole message of this schema in one pass, for a receiver that expects it
+        self.message = msgspec.msgpack.Decoder(
+            msgspec.defstruct(
+                f"{spec.name}_message",
+                [
+                    ("schema", Literal[spec.name]),  # type: ignore[valid-type]
+                    ("version", Literal[spec.version]),  # type: ignore[valid-type]
+                    *[(f.name, f.type) for f in msgspec.structs.fields(_Header)][2:-1],
+                    ("body", self.body),
+                ],
+                forbid_unknown_fields=True,
+            )
+        )
+        # 1-D fixed-length arrays come off the compiled types as flat float lists, always
+        self.any_shape = any(len(shape) > 1 or None in shape for _, shape in self.arrays)
 
     def arrays_of(self, body: dict[str, Any]) -> dict[str, Any] | None:
         """``body`` with its array fields as float64 ndarrays; None if one is ragged, or an
         empty nested list (whose inner dimensions the field kind rebuilds)."""
+        if not self.any_shape:
+            for name, _ in self.arrays:
+                body[name] = np.array(body[name], dtype=np.float64)
+            return body
         for name, shape in self.arrays:
             try:
                 body[name] = np.array(body[name], dtype=np.float64)
@@ -640,23 +660,25 @@ class _Compiled:
                 return None
         return body
 
-    def wire(self, body: Any) -> dict[str, Any] | None:
-        """``body`` as plain msgpack values in field order, checked by the compiled type;
-        None when anything is not plainly right (the field kinds then decide)."""
-        if type(body) is not dict or body.keys() != self.keys:
+    def wire(self, body: Any) -> msgspec.Struct | None:
+        """``body`` as the compiled type (plain msgpack values in field order, packed as a
+        map); None when anything is not plainly right (the field kinds then decide)."""
+        if type(body) is not dict or len(body) != len(self.fields):
             return None
         out: dict[str, Any] = {}
-        for name in self.fields:
-            value = body[name]
-            if type(value) is np.ndarray:
-                if value.dtype != np.float64:
-                    return None
-                value = value.tolist()
-            elif isinstance(value, np.generic):  # a numpy scalar, as the field kinds take it
-                value = value.item()
-            out[name] = value
-        try:  # the converted values: an int where a float is declared goes out as a float
-            return msgspec.structs.asdict(msgspec.convert(out, self.body))
+        try:
+            for name in self.fields:
+                value = body[name]  # a missing field: KeyError
+                kind = type(value)
+                if kind is np.ndarray:
+                    if value.dtype is not _FLOAT64:
+                        return None
+                    value = value.tolist()
+                elif kind not in _PLAIN and isinstance(value, np.generic):
+                    value = value.item()  # a numpy scalar, as the field kinds take it
+                out[name] = value
+            # the converted values: an int where a float is declared goes out as a float
+            return msgspec.convert(out, self.body)
         except Exception:
             return None
 
@@ -666,6 +688,15 @@ _COMPILED: dict[str, _Compiled] = {name: _Compiled(spec) for name, spec in SCHEM
 
 def _fast_decode(payload: bytes, expected: str | Collection[str] | None) -> Message | None:
     """``decode`` by the compiled types; None for anything they refuse."""
+    if type(expected) is str and (compiled := _COMPILED.get(expected)) is not None:
+        try:  # one pass: header and body of the one schema the receiver takes
+            whole = compiled.message.decode(payload)
+            body = compiled.arrays_of(msgspec.structs.asdict(whole.body))
+        except Exception:
+            return None
+        if body is None:
+            return None
+        return Message(whole.schema, whole.version, whole.seq, whole.t, whole.src, body)
     try:
         head = _HEADER.decode(payload)
         compiled = _COMPILED.get(head.schema)

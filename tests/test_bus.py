@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from services.bus import (
     DEFAULT_HUB,
@@ -347,6 +349,32 @@ def test_sequence_guard_accepts_each_seq_once_in_any_order() -> None:
     early = SequenceGuard(window=256)
     assert [early.check(s, float(s)) for s in range(5)] == [None] * 5
     assert early.check(1, 100.0) is None  # restarted before its first window was full
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(1, 8),
+    st.lists(st.tuples(st.integers(0, 40), st.integers(0, 40)), max_size=60),
+)
+def test_sequence_guard_matches_its_definition(window: int, arrivals: list) -> None:
+    """The guard's bit mask against the plain words of its docstring, on any arrivals: each
+    seq once, none at or below highest - window, a restart when a seq at or below the highest
+    comes with a time after the newest."""
+    guard = SequenceGuard(window=window)
+    seen: set[int] = set()
+    highest, newest = -1, -float("inf")
+    for seq, t in arrivals:
+        if seq <= highest and t > newest:
+            seen, highest, want = set(), -1, None
+        if seq <= highest - window:
+            want = "stale"
+        elif seq in seen:
+            want = "duplicate"
+        else:
+            want = None
+            seen.add(seq)
+            highest, newest = max(highest, seq), max(newest, t)
+        assert guard.check(seq, float(t)) == want, (seq, t)
 
 
 def test_replays_and_link_duplicates_are_refused_once_counted(
