@@ -402,6 +402,41 @@ def test_compiled_decode_agrees_with_field_kinds(payload: bytes, expected: Any) 
         assert isinstance(reference, Message) and _same_message(got, reference)
 
 
+def _edges() -> list[tuple[str, dict[str, Any]]]:
+    """Each schema's sample as it goes on the wire, and near misses of it: a header key more
+    or less, another version or schema name, and (for array fields) empty, ragged, nested
+    and flat lists."""
+    cases = []
+    for name in sorted(SCHEMAS):
+        body = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in SAMPLES[name].items()}
+        msg = {"schema": name, "version": 1, "seq": 0, "t": 0.0, "src": "s", "body": body}
+        cases += [(name, msg), (name, {**msg, "extra": 1}), (name, {**msg, "version": 2})]
+        cases += [(name, {k: v for k, v in msg.items() if k != "src"})]
+        cases += [(name, {**msg, "schema": "clock" if name != "clock" else "exo"})]
+        for key, field in SCHEMAS[name].fields.items():
+            if isinstance(field, Array):
+                for value in ([], [[]], [[], []], [[1.0], []], [[1.0, 2.0]], [1.0], [[[1.0]]]):
+                    cases.append((name, {**msg, "body": {**body, key: value}}))
+    return cases
+
+
+@pytest.mark.parametrize("expected, msg", _edges())
+def test_one_pass_decode_agrees_with_field_kinds(expected: str, msg: dict[str, Any]) -> None:
+    """A receiver that expects one schema decodes header and body in one pass: whatever that
+    accepts, the field kinds accept as the same message; what it refuses, they name."""
+    payload = msgpack.packb(msg)
+    reference = _by_field_kinds(lambda: decode(payload, expected))
+    fast = schema_module._fast_decode(payload, expected)
+    if fast is not None:
+        assert isinstance(reference, Message) and _same_message(fast, reference)
+    try:
+        got = decode(payload, expected)
+    except MessageError as err:
+        assert err.reason == reference
+    else:
+        assert isinstance(reference, Message) and _same_message(got, reference)
+
+
 @settings(max_examples=300, deadline=None)
 @given(_messages())
 def test_compiled_encode_agrees_with_field_kinds(payload: bytes) -> None:
