@@ -11,7 +11,8 @@ echo process (``python -m benchmarks.bus echo``) answers.  Measured for each lay
   same plain figure: plain zenoh puts each message).
 
 ``project``: ``services.bus.Bus`` on both sides: schema encode with the header, decode with
-validation (type, shape, finiteness), a zero-delay link model on the receiving route, the
+validation (type, shape, finiteness), the replay window, a zero-delay link model on the
+receiving route (a perfect link holding nothing: checked, and the message passes), the
 handler.  ``plain``: ``session.put(msgpack.packb(...))`` and ``msgpack.unpackb`` in a zenoh
 callback, the same dictionary (header and body) on the wire.
 """

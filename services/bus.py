@@ -208,7 +208,8 @@ class SequenceGuard:
     def check(self, seq: int, t: float) -> str | None:
         highest = self.highest
         if seq <= highest and t > self.newest_t:
-            highest, self._seen = -1, 0  # the publisher restarted
+            highest = self.highest = -1  # the publisher restarted
+            self._seen = 0
         elif seq <= highest - self.window:
             return "stale"
         if seq > highest:
@@ -421,6 +422,10 @@ class Bus:
         observe: Handler | None = None,
     ) -> None:
         """Subscribe to ``ddvi/<run>/<topic_pattern>`` (zenoh wildcards allowed).
+
+        A pattern without wildcards is the topic of all it hears: a raw put on a wildcard key
+        that zenoh delivers to it (``ddvi/<run>/**``) counts as a message on that topic, under
+        its link rule and its replay window (a replay cannot slip past them that way).
 
         Each sample is decoded and validated (rejects are counted by reason and logged), passed
         through ``link`` if given, else through the deployment's matching link rule, and what

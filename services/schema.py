@@ -671,7 +671,7 @@ class _Compiled:
                 value = body[name]  # a missing field: KeyError
                 kind = type(value)
                 if kind is np.ndarray:
-                    if value.dtype is not _FLOAT64:
+                    if value.dtype is not _FLOAT64 or not value.ndim:  # 0-d: no scalar field
                         return None
                     value = value.tolist()
                 elif kind not in _PLAIN and isinstance(value, np.generic):

@@ -307,6 +307,54 @@ def test_deployment_link_rules_apply_per_publisher(
         assert inbox.get_nowait()[1].src == "nav-deputy1"
 
 
+def test_a_link_rule_added_at_run_time_takes_the_next_message(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """A bus with no link rules passes messages straight through; a rule added while they
+    flow (a link fault from the ground) impairs every later one, and one added before it on
+    the same messages takes precedence."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    seen: Inbox = queue.Queue()
+    with Bus(hub, run, "controller") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav", observe=queue_handler(seen))
+        connect(tx, inbox, "nav/deputy1/state")
+        seen.queue.clear()
+        tx.publish("nav/deputy1/state", "nav", nav_body(1.0), t=1.0)
+        assert inbox.get(timeout=TIMEOUT)[1].t == 1.0
+        rx.add_link_rule(LinkRule("nav-*", "nav/*/state", LinkSpec(loss=1.0)))
+        for t in (2.0, 3.0, 4.0):
+            tx.publish("nav/deputy1/state", "nav", nav_body(t), t=t)
+        assert [seen.get(timeout=TIMEOUT)[1].t for _ in range(4)] == [1.0, 2.0, 3.0, 4.0]
+        assert inbox.empty() and rx.counters["dropped"] == 3
+        rx.add_link_rule(LinkRule("nav-deputy1", "nav/deputy1/state", LinkSpec()))
+        tx.publish("nav/deputy1/state", "nav", nav_body(5.0), t=5.0)
+        assert inbox.get(timeout=TIMEOUT)[1].t == 5.0 and rx.counters["dropped"] == 3
+
+
+def test_a_replay_on_a_wildcard_key_meets_the_topic_replay_window(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """zenoh hands a put on a wildcard key to every subscription it intersects: to one on a
+    plain key it is a message on that topic, and a recorded message put again that way is a
+    replay like any other."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    with Bus(hub, run, "controller") as rx, Bus(svc, run, "nav-deputy1") as tx:
+        rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav")
+        connect(tx, inbox, "nav/deputy1/state")
+        seq = tx.publish("nav/deputy1/state", "nav", nav_body(1.0), t=1.0)
+        assert inbox.get(timeout=TIMEOUT)[1].seq == seq
+        replay = encode("nav", nav_body(1.0), seq=seq, t=1.0, src="nav-deputy1")
+        for key in (f"ddvi/{run}/nav/*/state", f"ddvi/{run}/**"):
+            svc.put(key, replay, congestion_control=zenoh.CongestionControl.BLOCK)
+        assert wait_until(lambda: rx.counters["rejected.duplicate"] == 2)
+        fresh = encode("nav", nav_body(2.0), seq=seq + 1, t=2.0, src="nav-deputy1")
+        svc.put(f"ddvi/{run}/nav/*/state", fresh, congestion_control=zenoh.CongestionControl.BLOCK)
+        assert inbox.get(timeout=TIMEOUT)[0] == "nav/deputy1/state"
+        assert inbox.empty()
+
+
 def test_liveliness(sessions: tuple[zenoh.Session, zenoh.Session], run: str) -> None:
     hub, svc = sessions
     tx = Bus(svc, run, "nav-deputy1")
@@ -349,6 +397,9 @@ def test_sequence_guard_accepts_each_seq_once_in_any_order() -> None:
     early = SequenceGuard(window=256)
     assert [early.check(s, float(s)) for s in range(5)] == [None] * 5
     assert early.check(1, 100.0) is None  # restarted before its first window was full
+    assert early.check(4, 101.0) is None  # the old run's 4 is forgotten
+    with pytest.raises(ValueError, match="window"):
+        SequenceGuard(window=0)
 
 
 @settings(max_examples=300, deadline=None)

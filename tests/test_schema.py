@@ -404,14 +404,17 @@ def test_compiled_decode_agrees_with_field_kinds(payload: bytes, expected: Any) 
 
 def _edges() -> list[tuple[str, dict[str, Any]]]:
     """Each schema's sample as it goes on the wire, and near misses of it: a header key more
-    or less, another version or schema name, and (for array fields) empty, ragged, nested
-    and flat lists."""
+    or less, a header value out of its range, another version or schema name, and (for array
+    fields) empty, ragged, nested and flat lists."""
     cases = []
     for name in sorted(SCHEMAS):
         body = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in SAMPLES[name].items()}
         msg = {"schema": name, "version": 1, "seq": 0, "t": 0.0, "src": "s", "body": body}
         cases += [(name, msg), (name, {**msg, "extra": 1}), (name, {**msg, "version": 2})]
         cases += [(name, {k: v for k, v in msg.items() if k != "src"})]
+        for key, value in (("seq", -1), ("seq", 2.0), ("t", math.nan), ("t", -math.inf),
+                           ("t", 3), ("src", ""), ("src", 5)):  # fmt: skip
+            cases.append((name, {**msg, key: value}))
         cases += [(name, {**msg, "schema": "clock" if name != "clock" else "exo"})]
         for key, field in SCHEMAS[name].fields.items():
             if isinstance(field, Array):
@@ -452,6 +455,29 @@ def test_compiled_encode_agrees_with_field_kinds(payload: bytes) -> None:
     reference = _by_field_kinds(lambda: encode(name, body, seq=3, t=4.0, src="svc"))
     try:
         got = encode(name, body, seq=3, t=4.0, src="svc")
+    except MessageError as err:
+        assert err.reason == reference
+    else:
+        assert got == reference
+
+
+_NUMPY_VALUES = [
+    np.zeros(6, dtype=object), np.arange(6).astype("m8[ns]"), np.arange(6),
+    np.zeros(6, dtype=np.float32), np.zeros(6, dtype=">f8"), np.zeros(6, dtype=bool),
+    np.zeros((6, 1)), np.zeros(12)[::2], np.array(5.0), np.float32(5.0), 5, True,
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("value", _NUMPY_VALUES, ids=repr)
+@pytest.mark.parametrize("field", ["x_hill", "altitude"])
+def test_compiled_encode_agrees_on_numpy_values(field: str, value: Any) -> None:
+    """Arrays and scalars of every dtype and shape a service might hold, in an array field
+    and in a float one: the same bytes, or the same refusal, with or without the compiled
+    types."""
+    body = {**SAMPLES["nav"], field: value}
+    reference = _by_field_kinds(lambda: encode("nav", body, seq=1, t=2.0, src="svc"))
+    try:
+        got = encode("nav", body, seq=1, t=2.0, src="svc")
     except MessageError as err:
         assert err.reason == reference
     else:
