@@ -635,7 +635,11 @@ class _Compiled:
                 [
                     ("schema", Literal[spec.name]),  # type: ignore[valid-type]
                     ("version", Literal[spec.version]),  # type: ignore[valid-type]
-                    *[(f.name, f.type) for f in msgspec.structs.fields(_Header)][2:-1],
+                    *[  # seq, t and src with the header's limits
+                        (f.name, f.type)
+                        for f in msgspec.structs.fields(_Header)
+                        if f.name in ("seq", "t", "src")
+                    ],
                     ("body", self.body),
                 ],
                 forbid_unknown_fields=True,
