@@ -10,7 +10,7 @@ echo process (``python -m benchmarks.bus echo``) answers.  Measured for each lay
   burst put out in ``Bus.batch()`` blocks of six, as a lock-step step sends them (against the
   same plain figure: plain zenoh puts each message).
 
-``project``: ``services.bus.Bus`` on both sides: schema encode with the header, decode with
+``project``: ``services.bus.endpoint.Bus`` on both sides: schema encode with the header, decode with
 validation (type, shape, finiteness), the replay window, a zero-delay link model on the
 receiving route (a perfect link holding nothing: checked, and the message passes), the
 handler.  ``plain``: ``session.put(msgpack.packb(...))`` and ``msgpack.unpackb`` in a zenoh
@@ -35,9 +35,8 @@ import msgpack
 import numpy as np
 import zenoh
 
-from services.bus import Bus, BusSettings, open_session
-from services.launcher import free_port
-from services.links import LinkModel, LinkSpec
+from services.bus import Bus, BusSettings, LinkModel, LinkSpec, open_session
+from services.ground.launcher import free_port
 
 RUN = "bench"
 STEP_BATCH = 6  # messages of a topic in one lock-step step (six 10 s samples a 60 s step)

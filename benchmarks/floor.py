@@ -3,7 +3,8 @@
 The deployment's processes (the environment, a navigation and a controller service per deputy,
 the monitor) exchange the lock-step mission's messages, and each spends, every step, the wall
 time its share of the work takes in the one-process run
-(``services.inprocess.run_in_process(timing=...)``) as a busy spin.  Per flight-software step:
+(``services.flight.inprocess.run_in_process(timing=...)``) as a busy spin.  Per
+flight-software step:
 
     environment   spins its share (the truth); puts the step's samples of truth/<sc> for the
                   chief and each deputy and of exo/state, each topic's in one put (as
@@ -16,11 +17,11 @@ time its share of the work takes in the one-process run
 Two layers carry the flight processes' messages:
 
 - ``plain``: zenoh-python and msgpack, nothing else (no schema, link model, sequence guard);
-- ``bus``: the project's ``services.bus.Bus``: schema encode and validating decode, the link
-  model, sequence guards, one handler call a message.
+- ``bus``: the project's ``services.bus.endpoint.Bus``: schema encode and validating decode,
+  the link model, sequence guards, one handler call a message.
 
 The processes are started and configured as the services are: peer sessions meshed through
-the driver's hub, one zenoh receive worker (``services.bus.SERVICE_ZENOH_RUNTIME``), a
+the driver's hub, one zenoh receive worker (``services.bus.endpoint.SERVICE_ZENOH_RUNTIME``), a
 subscriber callback handing what arrives to the main thread over a ``queue.SimpleQueue``,
 senders waiting for the monitor before they put.  What the distributed mission's loop costs
 above the ``bus`` floor is the services' own beyond the one-process run's work (the
@@ -46,7 +47,7 @@ import numpy as np
 import zenoh
 
 from services.bus import SERVICE_ZENOH_RUNTIME, Bus, BusSettings, open_session, wait_for_alive
-from services.launcher import free_port
+from services.ground.launcher import free_port
 
 RUN = "floor"
 LAYERS = ("plain", "bus")

@@ -74,7 +74,7 @@ def bench_learning(quick: bool = False) -> list[dict]:
     from benchmarks.bus import BODY
     from ddvi_core.learning import IntervalCollector
     from ddvi_core.simulate import Exploration, simulate_zoh
-    from services.schema import decode, encode
+    from services.interface import decode, encode
 
     system = BUILTIN_SYSTEMS["rendezvous"]()
     repeat = 1 if quick else 3

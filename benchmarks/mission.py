@@ -1,7 +1,7 @@
 """Mission benchmarks: the distributed run against the single-process run, and swarm scaling.
 
 Throughput: the default deployment through ``ddvi run`` (every service its own process on
-Zenoh, start-up and report included) against ``services.inprocess.run_in_process`` (the same
+Zenoh, start-up and report included) against ``services.flight.inprocess.run_in_process`` (the same
 truth, navigation and controller code stepped in one process, no bus).  Then the loops alone
 (the first to the last clock message the monitor recorded; the one-process loop) and the
 lock-step floor
@@ -39,10 +39,10 @@ import psutil
 from mcap.reader import make_reader
 
 from benchmarks.floor import run_floor
-from services.deployment import load_deployment, read_table, write_deployment
-from services.inprocess import run_in_process
-from services.mission import duration
-from services.monitor import RECORDING
+from services.config import load_deployment, read_table, write_deployment
+from services.flight.inprocess import run_in_process
+from services.ground.monitor import RECORDING
+from services.model import duration
 
 
 class _PeakMemory:

@@ -118,8 +118,8 @@ def cmd_learn(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from services.deployment import DeploymentError, load_deployment
-    from services.launcher import Launcher
+    from services.config import DeploymentError, load_deployment
+    from services.ground.launcher import Launcher
 
     try:
         dep = load_deployment(args.deployment)
@@ -130,7 +130,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from services.monitor import monitor_command
+    from services.ground.monitor import monitor_command
 
     return int(monitor_command(args) or 0)
 
@@ -172,28 +172,28 @@ def _bench_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _monitor_arguments(p: argparse.ArgumentParser) -> None:
-    from services.monitor import add_monitor_arguments
+    from services.ground.monitor import add_monitor_arguments
 
     add_monitor_arguments(p)
     p.set_defaults(func=cmd_monitor)
 
 
 def _sweep_arguments(p: argparse.ArgumentParser) -> None:
-    from services.sweep import add_sweep_arguments, sweep_command
+    from services.ground.sweep import add_sweep_arguments, sweep_command
 
     add_sweep_arguments(p)
     p.set_defaults(func=sweep_command)
 
 
 def _fault_arguments(p: argparse.ArgumentParser) -> None:
-    from services.faults import add_fault_arguments, fault_command
+    from services.ground.faults import add_fault_arguments, fault_command
 
     add_fault_arguments(p)
     p.set_defaults(func=fault_command)
 
 
 def _netns_arguments(p: argparse.ArgumentParser) -> None:
-    from services.netns import add_netns_arguments, netns_command
+    from services.ground.netns import add_netns_arguments, netns_command
 
     add_netns_arguments(p)
     p.set_defaults(func=netns_command)

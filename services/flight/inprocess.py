@@ -1,0 +1,103 @@
+"""The mission stepped in one process with no bus: the same truth, navigation and controller
+code as the services, called directly.  It is the baseline the distributed run is measured
+against (benchmarks) and a quick way to study the learner on truth data."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ddvi_core.constants import R_EARTH
+from services.config import Deployment
+from services.flight.controller import Controller
+from services.model import (
+    IN_PLANE,
+    duration,
+    exostate,
+    navigation_state,
+    on_grid,
+    open_truth,
+    panel_schedule,
+)
+
+
+def run_in_process(
+    dep: Deployment, noise_seed: int = 0, timing: dict[str, float] | None = None
+) -> dict[str, dict]:
+    """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
+    the controller object (final gains, phase) and its learning log lines.
+
+    ``timing``, if given, is filled with the wall seconds of each service's share of the work:
+    ``environment`` (the truth, the exostate), ``nav-<deputy>`` (navigation states, bias and
+    noise) and ``ctrl-<deputy>`` (the controller, learning included), and ``steps``, the
+    number of flight-software steps (the benchmarks' lock-step floor spends them in its
+    processes)."""
+    clock = time.perf_counter
+    spent = dict.fromkeys(
+        ["environment", *(f"{p}-{d.name}" for d in dep.deputy for p in ("nav", "ctrl"))], 0.0
+    )
+    run = dep.run
+    fsw, t_end = run.fsw_period, duration(dep)
+    truth = open_truth(dep)
+    ctrls = [Controller(dep, d.name) for d in dep.deputy]
+    rng = np.random.default_rng(noise_seed)
+    out = {d.name: {"t": [], "x": [], "u": [], "log": []} for d in dep.deputy}
+    sigma = np.zeros((len(ctrls), 3))
+    navs = [d.navigation for d in dep.deputy]
+    biases = [np.array(nav.position_bias + nav.velocity_bias) for nav in navs]
+    noises = [np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3) for nav in navs]
+
+    def sample(t: float, X: np.ndarray) -> None:
+        t0 = clock()
+        v, _ = exostate(dep, t)
+        spent["environment"] += clock() - t0
+        for i, (d, c) in enumerate(zip(dep.deputy, ctrls, strict=True)):
+            if not on_grid(t, navs[i].period):
+                continue
+            t0 = clock()
+            x6 = navigation_state(dep, d, X[0], X[i + 1])
+            noisy = x6 + biases[i]
+            if noises[i].any():  # as the navigation service: no draw without noise
+                noisy = noisy + rng.normal(0, 1, 6) * noises[i]
+            altitude = float(np.linalg.norm(X[i + 1, :3])) - R_EARTH
+            t1 = clock()
+            outcome = c.on_sample(t, noisy[list(IN_PLANE)], v, altitude)
+            spent[f"nav-{d.name}"] += t1 - t0
+            spent[f"ctrl-{d.name}"] += clock() - t1
+            if outcome.learn_log is not None:
+                out[d.name]["log"].append(outcome.learn_log)
+            if outcome.fsw:
+                sigma[i] = [0.0, 0.0, c.u]
+            rec = out[d.name]
+            rec["t"].append(t)
+            rec["x"].append(x6)
+            rec["u"].append(c.u)
+
+    sample(0.0, truth.state)
+    t_k = 0.0
+    names = [d.name for d in dep.deputy]
+    # panel faults as the environment applies them (navigation-bias faults are not modelled)
+    panels = panel_schedule(dep)
+    steps = 0
+    try:
+        while t_k < t_end - 1e-6:
+            while panels and panels[0][0] <= t_k + 1e-6:
+                _, sc, factor, angle = panels.pop(0)
+                truth.set_panel(names.index(sc), factor, angle)
+            t0 = clock()
+            samples, traj = truth.step(t_k, sigma)
+            spent["environment"] += clock() - t0
+            for k, t in enumerate(samples):
+                sample(float(t), traj[k])
+            t_k += fsw
+            steps += 1
+    finally:
+        truth.close()
+    if timing is not None:
+        timing.update(spent, steps=steps)
+    for d, c in zip(dep.deputy, ctrls, strict=True):
+        rec = out[d.name]
+        rec["t"], rec["x"], rec["u"] = (np.array(rec[k]) for k in ("t", "x", "u"))
+        rec["controller"] = c
+    return out

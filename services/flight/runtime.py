@@ -1,0 +1,179 @@
+"""What every service process shares: its command line, its session, its bus, its shutdown.
+
+A service is started by the launcher as ``python -m services.<module> --deployment FILE
+--run RUN --hub ENDPOINT [--name NAME] [--out DIR] [--join]``; ``--join`` marks a restart into a
+running mission (``ServiceContext.joining``): the service declares itself alive only once it can
+do its job, so that nobody waits on it before.  ``run_service`` opens the zenoh session
+(always closed, whatever happens), builds the Bus, turns SIGTERM/SIGINT into a stop request,
+runs the service's main loop, publishes its final counters and returns an exit status.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 2 cores: BLAS threads would fight services
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from fnmatch import fnmatchcase
+from typing import Any
+
+from services.bus import (
+    LINK_PARAMETERS,
+    SERVICE_ZENOH_RUNTIME,
+    Bus,
+    BusSettings,
+    LinkRule,
+    LinkSpec,
+    impairs_truth,
+    open_session,
+    wait_for_alive,
+)
+from services.config import Deployment, DeploymentError, load_deployment
+from services.interface import Message
+
+# zenoh reads it when a session opens: every service's, not the launcher's (SERVICE_ZENOH_RUNTIME)
+os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)
+
+log = logging.getLogger("ddvi")
+
+END_GRACE = 2.0
+"""Wall seconds a service waits, after the final clock, for a message its link may have lost."""
+
+MONITOR_WAIT = 10.0
+"""Wall seconds a service waits at start-up to see the monitor, so that what it publishes first
+is recorded: a message put before this session knows the monitor's subscription goes nowhere."""
+
+
+@dataclass
+class ServiceContext:
+    """Handed to a service's main function."""
+
+    deployment: Deployment
+    run: str
+    name: str
+    bus: Bus
+    stop: threading.Event  # set by SIGTERM/SIGINT: finish the current step and return
+    out: str  # the run's output folder
+    joining: bool = False  # restarted into a running mission (the launcher's --join)
+
+    def ready(self) -> None:
+        """Declare the liveliness token: call once every subscription is declared, so that a
+        service seen alive never misses a message addressed to it."""
+        self.bus.declare_alive()
+
+    def publish_stats(self, t: float, extra: dict[str, int] | None = None) -> None:
+        counters = dict(self.bus.counters)
+        counters.update(extra or {})
+        self.bus.publish(
+            f"stats/{self.name}", "stats", {"service": self.name, "counters": counters}, t
+        )
+
+    def on_link_fault(self, _topic: str, msg: Message) -> None:
+        """``fault/link`` (``ddvi fault RUN link``): when this service matches the fault's
+        target (the subscriber glob), impair what it receives from ``params.from`` (a publisher
+        glob) on ``params.topic`` from now on, as a deployment's [[link]] would."""
+        target, p = msg.body["target"], msg.body["params"]
+        if self.name == "monitor" or not fnmatchcase(self.name, target):
+            return  # the monitor records what is published, unimpaired
+        where = f"fault link {target}: "
+        try:
+            publisher, topic = str(p.get("from", "*")), str(p.get("topic", "*"))
+            spec = LinkSpec(**{k: float(p.get(k, 0.0)) for k in LINK_PARAMETERS})
+            if impairs_truth(publisher, self.name):
+                raise ValueError("the truth a navigation service measures is not a flight link")
+        except (TypeError, ValueError) as exc:
+            self.log("warning", where + f"refused at {self.name} ({exc})", msg.t)
+            return
+        self.bus.add_link_rule(LinkRule(publisher, topic, spec))
+        impairments = ", ".join(f"{k} {getattr(spec, k):g}" for k in LINK_PARAMETERS
+                                if getattr(spec, k)) or "none"  # fmt: skip
+        self.log("warning", where + f"{self.name} now receives {topic} from {publisher} with "
+                 f"{impairments} (from t = {msg.t:.0f} s)", msg.t)  # fmt: skip
+
+    def log(self, level: str, text: str, t: float = 0.0) -> None:
+        getattr(log, level if level in ("info", "warning", "error") else "info")(text)
+        try:
+            self.bus.publish(
+                f"log/{self.name}",
+                "log",
+                {"service": self.name, "level": level, "text": text[:2000]},
+                t,
+            )
+        except Exception:  # logging must never take a service down
+            log.exception("could not publish a log message")
+
+
+def bus_settings(dep: Deployment, hub: str) -> BusSettings:
+    connect = [hub, *dep.bus.connect]
+    if dep.bus.mode == "client":
+        return BusSettings(mode="client", listen=[], connect=connect)
+    return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
+
+
+def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog=f"services.{default_name}")
+    ap.add_argument("--deployment", required=True)
+    ap.add_argument("--run", required=True)
+    ap.add_argument("--hub", required=True, help="zenoh endpoint of the run's hub")
+    ap.add_argument("--name", default=default_name, help="service name")
+    ap.add_argument("--out", default=".", help="the run's output folder")
+    ap.add_argument("--join", action="store_true", help="restarted into a running mission")
+    return ap.parse_args(argv)
+
+
+def _see_monitor(session: Any, run: str, stop: threading.Event) -> bool:
+    """Wait up to MONITOR_WAIT s for the monitor's token, in slices: a stop request ends it."""
+    deadline = time.monotonic() + MONITOR_WAIT
+    while not stop.is_set() and time.monotonic() < deadline:
+        if wait_for_alive(session, run, ["monitor"], min(0.5, deadline - time.monotonic())):
+            return True
+    return False
+
+
+def run_service(
+    main: Callable[[ServiceContext], int], default_name: str, argv: list[str] | None = None
+) -> int:
+    args = parse_args(argv, default_name)
+    logging.basicConfig(
+        level=logging.INFO,
+        stream=sys.stderr,
+        format=f"%(asctime)s {args.name} %(levelname)s %(message)s",
+    )
+    try:
+        dep = load_deployment(args.deployment)
+    except DeploymentError as exc:
+        print(f"{args.name}: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    with open_session(bus_settings(dep, args.hub)) as session:
+        bus = Bus(
+            session,
+            args.run,
+            args.name,
+            links=dep.links_for(args.name),
+            link_clock="sim" if dep.run.mode == "lockstep" else "wall",
+            seed=dep.run.seed,
+        )
+        try:
+            ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
+            # the monitor subscribed before its token: seeing the token, this session knows
+            # the subscription (the launcher starts the monitor first: this is quick)
+            if args.name != "monitor" and not _see_monitor(session, args.run, stop):
+                log.warning("the monitor is not seen after %g s: what this service publishes "
+                            "before it is may not be recorded", MONITOR_WAIT)  # fmt: skip
+            bus.subscribe("fault/link", ctx.on_link_fault, expected_schema="fault")
+            status = main(ctx)
+            bus.declare_alive()  # no-op if the service declared itself ready
+            return status
+        finally:
+            bus.close()

@@ -1,0 +1,166 @@
+"""``ddvi fault RUN KIND ...``: inject a fault into a running deployment from the ground.
+
+A fault is a message on ``ddvi/<run>/fault/<kind>`` (schema ``fault``: kind, target, params)
+that the service responsible acts on, stamped with the run's simulation time (read from its
+clock, which also proves the run is there).  Kinds built so far:
+
+    kill SERVICE                    the launcher kills the service with SIGKILL, as a crash
+                                    would; its [[restart]] policy decides what follows
+    panel DEPUTY {--area-factor F | --stuck-angle DEG | both}
+                                    the environment makes the deputy's true drag-panel area F
+                                    times the nominal and/or sticks its hinge with the facet
+                                    normal at DEG in (0, 90) in the body x-y plane (the
+                                    controllers are not told)
+    bias DEPUTY --position X Y Z [--velocity X Y Z]
+                                    the deputy's navigation bias becomes this (m, m/s)
+    link --from PUB --to SUB [--topic T] [--delay S] [--jitter S] [--loss P] [--duplicate P]
+         [--reorder P]              every service matching SUB impairs what it receives from
+                                    PUB (service-name globs; nav/deputy1 means nav-deputy1)
+                                    from now on, ahead of the deployment's [[link]]s
+
+The service that acts logs ``fault <kind> <target>: ...``; the command waits for that line,
+prints it, and exits 0, or 1 when the run, the service or that answer is not there, or the
+service refused the fault.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import queue
+import sys
+import time
+
+import zenoh
+
+from services.bus import (
+    DEFAULT_HUB,
+    EPHEMERAL_LOOPBACK,
+    LINK_PARAMETERS,
+    Bus,
+    BusSettings,
+    check_name,
+    open_session,
+    queue_handler,
+    wait_for_alive,
+)
+from services.config import check_panel
+from services.interface import decode
+
+KINDS = ("kill", "panel", "bias", "link")
+
+
+def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The arguments of ``ddvi fault``, for ``services.cli``."""
+    p.add_argument("run", help="the run's name (ddvi run prints it: 'run <name>, ...')")
+    p.add_argument("kind", choices=KINDS, help="what to inject")
+    p.add_argument("target", nargs="?", help="kill: a service (ctrl-<deputy>, nav-<deputy>); "
+                   "panel, bias: a deputy; link: see --to")  # fmt: skip
+    p.add_argument("--from", dest="publisher", help="link: publishing service(s), a glob")
+    p.add_argument("--to", dest="subscriber", help="link: subscribing service(s), a glob")
+    p.add_argument("--topic", default="*", help="link: topic glob (default: all but the clock)")
+    for key in LINK_PARAMETERS:
+        unit = "s" if key in ("delay", "jitter") else "probability"
+        p.add_argument(f"--{key}", type=float, default=0.0, help=f"link: {key} ({unit})")
+    p.add_argument("--area-factor", type=float, help="panel: true area / nominal")
+    p.add_argument("--stuck-angle", type=float, metavar="DEG",
+                   help="panel: facet normal stuck at DEG (0-90) in body x-y")  # fmt: skip
+    p.add_argument("--position", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="bias: Hill position bias, m")  # fmt: skip
+    p.add_argument("--velocity", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   default=[0.0, 0.0, 0.0], help="bias: Hill velocity bias, m/s")  # fmt: skip
+    p.add_argument("--hub", default=DEFAULT_HUB, help="the run's hub (ddvi run prints it)")
+    # a lock-step run sends no clock while a controller learns (seconds, more on a busy host)
+    p.add_argument("--timeout", type=float, default=30.0, help="s to wait for the run's answer")
+    return p
+
+
+def _clock(session: zenoh.Session, run: str, timeout: float) -> float | None:
+    """The run's simulation time, from its next clock message (None: none within timeout)."""
+    inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    sub = session.declare_subscriber(f"ddvi/{run}/clock", lambda s: inbox.put(s.payload.to_bytes()))
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                return decode(inbox.get(timeout=0.1), "clock").t
+            except queue.Empty:
+                continue
+            except Exception:
+                continue  # not a clock we can read: wait for the next
+        return None
+    finally:
+        sub.undeclare()
+
+
+def fault_command(args: argparse.Namespace) -> int:
+    """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
+    if args.kind == "link":
+        if not args.publisher or not args.subscriber:
+            print("ddvi fault link: give --from PUBLISHER and --to SUBSCRIBER", file=sys.stderr)
+            return 2
+        args.target = args.subscriber.replace("/", "-")
+    elif not args.target:
+        print(f"ddvi fault {args.kind}: name the target", file=sys.stderr)
+        return 2
+    try:
+        run = check_name("run", args.run)
+        target = args.target if args.kind == "link" else check_name("target", args.target)
+    except ValueError as exc:
+        print(f"ddvi fault: {exc}", file=sys.stderr)
+        return 2
+    if args.kind == "panel":
+        try:
+            check_panel(args.area_factor, args.stuck_angle)
+        except ValueError as exc:
+            print(f"ddvi fault panel: give --area-factor F > 0 and/or --stuck-angle DEG in "
+                  f"(0, 90) ({exc})", file=sys.stderr)  # fmt: skip
+            return 2
+        params = {"area_factor": args.area_factor, "normal_angle": args.stuck_angle}
+        params, acting = {k: v for k, v in params.items() if v is not None}, "environment"
+    elif args.kind == "bias":
+        if args.position is None:
+            print("ddvi fault bias: give --position X Y Z (m)", file=sys.stderr)
+            return 2
+        values = [*args.position, *args.velocity]
+        params = dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True))
+        acting = f"nav-{target}"
+    elif args.kind == "link":
+        params = {"from": args.publisher.replace("/", "-"), "topic": args.topic}
+        params.update({k: getattr(args, k) for k in LINK_PARAMETERS})
+        acting = None  # every service the glob matches answers
+    else:
+        params, acting = {}, target
+    settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
+    with open_session(settings) as session:
+        t = _clock(session, run, args.timeout)
+        if t is None:
+            print(
+                f"ddvi fault: no clock from run {run!r} on {args.hub} within {args.timeout:g} s; "
+                "is it running? (ddvi run prints 'run <name>, output <dir>, hub <endpoint>')",
+                file=sys.stderr,
+            )
+            return 1
+        if acting is not None and not wait_for_alive(session, run, [acting], 2.0):
+            print(f"ddvi fault: service {acting!r} is not alive in run {run!r}", file=sys.stderr)
+            return 1
+        answers: queue.SimpleQueue = queue.SimpleQueue()
+        with Bus(session, run, f"ground-{os.getpid()}") as bus:
+            bus.subscribe("log/*", queue_handler(answers), expected_schema="log")
+            time.sleep(0.2)  # let the subscription reach the service before it answers
+            bus.publish(f"fault/{args.kind}", "fault", {"kind": args.kind, "target": target,
+                        "params": params}, t)  # fmt: skip
+            print(f"ddvi fault: {args.kind} {target} sent at t = {t:.0f} s")
+            deadline = time.monotonic() + args.timeout
+            while time.monotonic() < deadline:
+                try:
+                    _, msg = answers.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                text = msg.body["text"]
+                if text.startswith(f"fault {args.kind} {target}:"):
+                    print(f"{msg.body['service']}: {text}")
+                    return 1 if ": ignored" in text or ": refused" in text else 0
+    who = acting or f"a service matching {target!r}"
+    print(f"ddvi fault: no answer from {who} within {args.timeout:g} s", file=sys.stderr)
+    return 1

@@ -1,0 +1,88 @@
+"""The benchmarks' own measuring tools: the learning benchmark's search for the fewest
+iterations to a gain tolerance, the mission benchmark's memory of a process tree, the
+one-process run's split of its work among the services, and the lock-step floor."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from benchmarks.floor import run_floor
+from benchmarks.learning import ddvi_after, iterations_to
+from benchmarks.mission import _PeakMemory
+from ddvi_core.systems import BUILTIN_SYSTEMS
+from services.config import deployment_from_table, read_table
+from services.flight.inprocess import run_in_process
+from services.model import duration
+
+
+def test_iterations_to_finds_where_the_gain_error_crosses_the_tolerance() -> None:
+    system = BUILTIN_SYSTEMS["rendezvous"]()
+    n, wall, err = iterations_to(system, 1e-3, upper=30_000, resolution=2_000)
+    assert err < 1e-3
+    assert err == pytest.approx(ddvi_after(system, n)[1], rel=1e-9)
+    assert ddvi_after(system, n - 2_000)[1] >= 1e-3  # not reached a resolution earlier
+    assert 0 < n < 30_000
+    assert wall > 0
+
+
+def test_iterations_to_refuses_a_bound_that_does_not_reach_the_tolerance() -> None:
+    system = BUILTIN_SYSTEMS["rendezvous"]()
+    with pytest.raises(ValueError, match=r"after 100 iterations: not below 0\.001"):
+        iterations_to(system, 1e-3, upper=100, resolution=10)
+
+
+def test_peak_memory_counts_a_descendant_once() -> None:
+    """A grandchild holding 200 MB of its own, under a parent that holds nothing: the
+    summed memory of the tree sees it, and once."""
+    code = "import numpy, time; a = numpy.ones(25_000_000); time.sleep(2.5)"
+    parent = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"import subprocess, sys; subprocess.run([sys.executable, '-c', {code!r}])",
+        ]
+    )
+    memory = _PeakMemory(parent.pid)
+    parent.wait()
+    peak = memory.stop()
+    assert 200e6 < peak < 400e6
+
+
+def test_one_process_timing_splits_its_work_among_the_services() -> None:
+    table = read_table(None)
+    table["run"]["orbits"] = 1.0
+    dep = deployment_from_table(table)
+    timing: dict[str, float] = {}
+    run_in_process(dep, timing=timing)
+    shares = {"environment", "nav-lqr", "ctrl-lqr", "nav-ddvi", "ctrl-ddvi"}
+    assert set(timing) == shares | {"steps"}
+    assert timing["steps"] == round(duration(dep) / dep.run.fsw_period)
+    assert all(timing[name] > 0 for name in shares)
+
+
+@pytest.mark.parametrize("layer", ["plain", "bus"])
+def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
+    """Three deputies, 40 steps: the monitor has every sample, and each step waits for the
+    environment's 3 ms of work and then a navigation's 3 ms (lock-step: in series)."""
+    spins = {"environment": 0.003, "nav-b": 0.003}
+    floor = run_floor(["a", "b", "c"], 40, samples=3, spins=spins, layer=layer)
+    assert floor["steps"] == 40
+    assert floor["received"] == 40 * (3 + 3 + 2 * 3) + 1
+    assert floor["loop_s"] >= 40 * 0.006
+
+
+def test_floor_ends_when_one_of_its_processes_fails() -> None:
+    """A deputy name zenoh cannot put under: its processes fail at their first declaration,
+    and the floor says which instead of waiting for them."""
+    with pytest.raises(RuntimeError, match=r"floor: (nav-x\*|ctrl-x\*|environment) failed"):
+        run_floor(["x*"], 5)
+
+
+def test_floor_refuses_an_empty_mission_and_an_unknown_layer() -> None:
+    with pytest.raises(ValueError, match="at least one deputy"):
+        run_floor([], 10)
+    with pytest.raises(ValueError, match="layer 'zmq' is not one of"):
+        run_floor(["a"], 10, layer="zmq")
