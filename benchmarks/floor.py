@@ -48,11 +48,19 @@ import zenoh
 
 from services.bus import SERVICE_ZENOH_RUNTIME, Bus, BusSettings, open_session, wait_for_alive
 from services.ground.launcher import free_port
+from services.interface.topics import (
+    CLOCK,
+    EXOSTATE,
+    alive_topic,
+    command_topic,
+    nav_state_topic,
+    truth_topic,
+)
 
 RUN = "floor"
 LAYERS = ("plain", "bus")
 STOP = "floor/stop"  # the environment's last put: every process ends on it
-START_TIMEOUT = 60.0  # s for every process to be up (2 cores, 2 + 2N interpreters starting)
+START_TIMEOUT = 60.0  # s for every process to be up (2 + 2N interpreters start at once)
 STEP_TIMEOUT = 30.0  # s a process waits for a step's message before giving up
 
 # what arrives, as the main thread sees it: (topic, time of the first message, messages)
@@ -163,9 +171,9 @@ def _environment(
     grid: _Step, spin: float,
 ) -> dict[str, Any]:  # fmt: skip
     inbox: queue.SimpleQueue[Arrival] = queue.SimpleQueue()
-    wire.subscribe("cmd/*/att", "cmd", inbox.put)
+    wire.subscribe(command_topic("*"), "cmd", inbox.put)  # every deputy's
     stop = session.declare_publisher(_key(STOP), congestion_control=zenoh.CongestionControl.BLOCK)
-    token = session.liveliness().declare_token(_key("alive/environment"))  # subscribed
+    token = session.liveliness().declare_token(_key(alive_topic("environment")))  # subscribed
     others = ["monitor", *(f"{p}-{d}" for d in deputies for p in ("nav", "ctrl"))]
     try:
         if set(others) - wait_for_alive(session, RUN, others, START_TIMEOUT):
@@ -175,9 +183,9 @@ def _environment(
             _spin(spin)
             times = grid.times(k)
             for sc in ("chief", *deputies):
-                wire.publish(f"truth/{sc}", "truth", sc, times)
-            wire.publish("exo/state", "exo", "environment", times)
-            wire.publish("clock", "clock", "environment", times[-1:])
+                wire.publish(truth_topic(sc), "truth", sc, times)
+            wire.publish(EXOSTATE, "exo", "environment", times)
+            wire.publish(CLOCK, "clock", "environment", times[-1:])
             done: set[str] = set()
             while len(done) < len(deputies):
                 topic, t, _ = inbox.get(timeout=STEP_TIMEOUT)
@@ -200,7 +208,7 @@ def _relay(
     itself alive once its ``receiver`` is (so that its first put reaches it), and the
     environment starts once everyone is."""
     inbox: queue.SimpleQueue[Arrival] = queue.SimpleQueue()
-    for topic, kind in [*inputs, ("clock", "clock")]:
+    for topic, kind in [*inputs, (CLOCK, "clock")]:
         wire.subscribe(topic, kind, inbox.put)
     stop = session.declare_subscriber(_key(STOP), lambda _: inbox.put((STOP, 0.0, 0)))
     have: dict[int, int] = {}
@@ -208,14 +216,14 @@ def _relay(
     try:
         if not wait_for_alive(session, RUN, [receiver], START_TIMEOUT):
             raise RuntimeError(f"floor: {name} does not see {receiver}")
-        token = session.liveliness().declare_token(_key(f"alive/{name}"))
+        token = session.liveliness().declare_token(_key(alive_topic(name)))
         wait = 2 * START_TIMEOUT  # the others' start-up, then a step at most
         while True:
             topic, t, n = inbox.get(timeout=wait)
             wait = STEP_TIMEOUT
             if topic == STOP:
                 break
-            if topic == "clock":
+            if topic == CLOCK:
                 continue
             k = grid.of(t)
             have[k] = have.get(k, 0) + n
@@ -234,7 +242,7 @@ def _monitor(session: zenoh.Session, expected: int) -> dict[str, Any]:
     sub = session.declare_subscriber(_key("**"), lambda s: inbox.put(str(s.key_expr)))
     received = 0
     try:
-        token = session.liveliness().declare_token(_key("alive/monitor"))
+        token = session.liveliness().declare_token(_key(alive_topic("monitor")))
         # after the stop, what other publishers put before it may still be on its way: wait
         # for all of it (and a little more, for any extra) or 2 s
         deadline = None
@@ -280,17 +288,17 @@ def _role(args: argparse.Namespace) -> dict[str, Any]:
             kind, sc = args.role.split("-", 1)
             if kind == "nav":
                 inputs, receiver = (
-                    [("truth/chief", "truth"), (f"truth/{sc}", "truth")],
+                    [(truth_topic("chief"), "truth"), (truth_topic(sc), "truth")],
                     f"ctrl-{sc}",
                 )
 
                 def publish(k: int) -> None:
-                    wire.publish(f"nav/{sc}/state", "nav", sc, grid.times(k))
+                    wire.publish(nav_state_topic(sc), "nav", sc, grid.times(k))
             else:
-                inputs, receiver = [(f"nav/{sc}/state", "nav"), ("exo/state", "exo")], "environment"
+                inputs, receiver = [(nav_state_topic(sc), "nav"), (EXOSTATE, "exo")], "environment"
 
                 def publish(k: int) -> None:
-                    wire.publish(f"cmd/{sc}/att", "cmd", sc, grid.times(k)[-1:])
+                    wire.publish(command_topic(sc), "cmd", sc, grid.times(k)[-1:])
 
             return _relay(wire, session, args.role, inputs, receiver, publish, grid, args.spin)
         finally:

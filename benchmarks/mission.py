@@ -16,10 +16,10 @@ every second, sooner at first).  The baseline is the one-deputy run of the same 
 
 Memory is the proportional set size (PSS) summed over the processes: each page counted once,
 a shared one split among the processes that map it.  A sum of resident sizes (RSS) would count
-the interpreter's and every extension's shared pages once per process (measured: 2.7 GB
-against 1.4 GB for the 16-deputy run, 560 against 341 MB for the default mission).  Reading
-a process's PSS costs about a millisecond (the kernel walks its page tables), hence one
-sample a second: 1 % of a core for six processes.
+the interpreter's and every extension's shared pages once per process, and grow with the
+number of processes far faster than the memory the run holds.  Reading a process's PSS makes
+the kernel walk its page tables, hence one sample a second: the sampling must not load the
+cores the run is measured on.
 """
 
 from __future__ import annotations
@@ -39,9 +39,10 @@ import psutil
 from mcap.reader import make_reader
 
 from benchmarks.floor import run_floor
-from services.config import load_deployment, read_table, write_deployment
+from services.config import Deployment, load_deployment, read_table, write_deployment
 from services.flight.inprocess import run_in_process
-from services.ground.monitor import RECORDING
+from services.ground.recording import RECORDING
+from services.interface.topics import CLOCK
 from services.model import duration
 
 
@@ -106,7 +107,7 @@ def _clock_span(path: Path) -> float:
     """Wall seconds from the first to the last clock message the monitor recorded: the
     lock-step loop, without the services' start-up and final stats."""
     with path.open("rb") as f:
-        stamps = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=["clock"])]
+        stamps = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
     return (max(stamps) - min(stamps)) / 1e9
 
 
@@ -168,28 +169,35 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
         path = write_deployment(table, Path(tmp), "mission")
         dep = load_deployment(str(path))
-        sim = duration(dep)
         single = run_single(path)
         dist = run_distributed(path)
-    # the same processes, messages and work on plain zenoh and on the project's Bus: what
-    # services and a monitor that cost nothing beyond the one-process work would leave
     timing = single["timing"]
     steps = int(timing.pop("steps"))
-    floors = {
-        layer: run_floor(
-            [d.name for d in dep.deputy],
-            steps,
-            samples=round(dep.run.fsw_period / dep.run.nav_period),
-            dt=dep.run.nav_period,
-            spins={name: spent / steps for name, spent in timing.items()},
-            layer=layer,
-        )["loop_s"]
-        for layer in ("plain", "bus")
-    }
-    loop = dist["loop_s"]
-    shares = ", ".join(f"{name} {1e3 * spent / steps:.2f}" for name, spent in timing.items())
-    work = sum(timing.values())
-    orbits = table["run"]["orbits"]
+    floors = {layer: mission_floor(dep, timing, steps, layer) for layer in ("plain", "bus")}
+    return _whole_run_rows(table["run"]["orbits"], duration(dep), dist, single) + _loop_rows(
+        dist["loop_s"], single["loop_s"], floors, timing, steps
+    )
+
+
+def mission_floor(dep: Deployment, timing: dict[str, float], steps: int, layer: str) -> float:
+    """The lock-step floor's loop (s) for ``dep`` on ``layer``: the same processes, messages
+    and work (each service's share of the one-process run, ``timing``, over ``steps``) as
+    the distributed run, with services and a monitor that cost nothing beyond that work."""
+    return run_floor(
+        [d.name for d in dep.deputy],
+        steps,
+        samples=round(dep.run.fsw_period / dep.run.nav_period),
+        dt=dep.run.nav_period,
+        spins={name: spent / steps for name, spent in timing.items()},
+        layer=layer,
+    )["loop_s"]
+
+
+def _whole_run_rows(
+    orbits: float, sim: float, dist: dict[str, Any], single: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """Wall time, simulated seconds per wall second and peak memory of the whole run (start-up
+    included, ``sim`` simulated seconds), distributed against one process."""
     base = "one process, no bus"
     ratio = dist["wall_s"] / single["wall_s"]
     return [
@@ -213,29 +221,43 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
             base,
             dist["pss_bytes"] / single["pss_bytes"],
         ),
+    ]
+
+
+def _loop_rows(
+    loop: float, single_loop: float, floors: dict[str, float], timing: dict[str, float],
+    steps: int,
+) -> list[dict[str, Any]]:  # fmt: skip
+    """The lock-step loop alone (s), distributed (``loop``) against one process
+    (``single_loop``), and split by the floors into the architecture's, the bus layer's and
+    the services' own cost; ``timing``: each service's work (s) over ``steps``."""
+    base = "one process, no bus: loop"
+    shares = ", ".join(f"{name} {1e3 * spent / steps:.2f}" for name, spent in timing.items())
+    work = sum(timing.values())
+    return [
         _row(
             f"loop only: first to last clock ({steps:,} lock-step steps)",
             "s",
             loop,
-            single["loop_s"],
-            "one process, no bus: loop",
-            loop / single["loop_s"],
+            single_loop,
+            base,
+            loop / single_loop,
         ),
         _row(
             "floor: plain zenoh, same processes, messages and work",
             "s",
             floors["plain"],
-            single["loop_s"],
-            "one process, no bus: loop",
-            floors["plain"] / single["loop_s"],
+            single_loop,
+            base,
+            floors["plain"] / single_loop,
         ),
         _row(
             f"one process's work, ms a step: {shares}",
             "ms",
             1e3 * work / steps,
-            1e3 * single["loop_s"] / steps,
-            "one process, no bus: loop",
-            work / single["loop_s"],
+            1e3 * single_loop / steps,
+            base,
+            work / single_loop,
         ),
         _row(
             "floor on the project's Bus",

@@ -1,6 +1,6 @@
 """``ddvi bench``: every benchmark, each against its baseline measured in the same run.
 
-    ddvi bench            # the full set (under 2 minutes on 2 cores)
+    ddvi bench            # the full set
     ddvi bench --quick    # short versions, under a minute
     ddvi bench --json     # one JSON list of rows on stdout
 

@@ -1,4 +1,4 @@
-"""Physical constants of the truth model (DESIGN.md section 5). SI units."""
+"""Physical constants of the truth model (docs/design.md, "The default mission"). SI units."""
 
 MU_EARTH: float = 3.986004415e14
 """Earth's gravitational parameter, m^3/s^2."""

@@ -17,7 +17,8 @@ Regression (eq. VI data-driven): for each j,
     Theta_j [vecs(H_k); vec(K_k+1); vec((D - S(X_j))^T P_k)] = delta_j vecs(P_k),
     Theta_j = [I_xbar_j, 2 Gamma_xbar_j_u (I_n kron R), 2 Gamma_xbar_j_v],
 with Theta_j's pseudo-inverse applied once: G_j = pinv(Theta_j) delta_j maps vecs(P) to the
-unknowns, so an iteration is one small matrix-vector product.
+unknowns, so an iteration is one small matrix-vector product.  The regression's steps are the
+pure functions of :mod:`ddvi_core.regression`; this module holds the data and the learner.
 """
 
 from __future__ import annotations
@@ -26,17 +27,27 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from ddvi_core.regulator import solve_equality_constrained_lstsq
+from ddvi_core.regression import (
+    EquilibratedTheta,
+    RiccatiMap,
+    equilibrated_thetas,
+    exostate_offsets,
+    implied_matrices,
+    rank_report,
+    regression_maps,
+    regression_solution,
+    scale_intervals,
+    solve_output_regulation,
+)
 from ddvi_core.value_iteration import (
     BoundSchedule,
     Scaling,
     StepSequence,
     value_iteration_loop,
 )
-from ddvi_core.vec import triangle_size, unvec, vec, vecs, vecv
+from ddvi_core.vec import triangle_size
 
 __all__ = [
     "DDVIResult",
@@ -262,49 +273,44 @@ class DDVIResult:
     message: str = ""
 
 
-def _theta(
-    data: IntervalData, T: NDArray, R: NDArray, W: NDArray, G: NDArray, ws: NDArray, we: NDArray
+def _checked_weights(
+    data: IntervalData,
+    Q: ArrayLike,
+    R: ArrayLike,
+    C: ArrayLike | None,
+    E: ArrayLike | None,
+    F: ArrayLike | None,
 ) -> tuple[NDArray, NDArray]:
-    """Theta_j (rho, cols) and delta_j (rho, n(n+1)/2) for xbar = T w."""
+    """Q (n, n) and R (m, m) as float arrays, after checking them and the exosystem against
+    the data's n, m and q."""
     n, m, q = data.n, data.m, data.q
-    rows, cols = np.triu_indices(n)
-    M = np.einsum("ia,lab,jb->lij", T, W, T)
-    I_x = M[:, rows, cols]
-    Gu = np.einsum("ia,lak->lik", T, G).reshape(len(W), n * m)
-    Gv = np.einsum("ia,lak->lik", T, W[:, :, n:]).reshape(len(W), n * q)
-    delta = vecv(we @ T.T) - vecv(ws @ T.T)
-    Theta = np.hstack([I_x, 2.0 * Gu @ np.kron(np.eye(n), R), 2.0 * Gv])
-    return Theta, delta
+    Q = np.asarray(Q, dtype=float)
+    R = np.asarray(R, dtype=float)
+    if Q.shape != (n, n) or R.shape != (m, m):
+        raise LearningError(f"Q must be {n}x{n} and R {m}x{m}, got {Q.shape} and {R.shape}")
+    if q and (E is None or C is None or F is None):
+        raise LearningError("data carry an exostate (q > 0): C, E and F are required")
+    return Q, R
 
 
-def _rank_report(
-    Theta: NDArray, n: int, m: int, q: int, rank: int, needed: int, rho: int, rtol: float
-) -> str:
-    parts = [f"data rank {rank} of {needed} needed (n(n+1)/2 + (m+q)n with n={n}, m={m}, q={q})"]
-    if rho < needed:
-        parts.append(f"only {rho} intervals were collected; at least {needed} are needed")
-    *_, Vt = np.linalg.svd(Theta, full_matrices=True)
-    null = Vt[rank:]
-    t = triangle_size(n)
-    blocks = {
-        "the state's quadratic terms (x excitation)": slice(0, t),
-        "the input terms (u excitation: add exploration noise)": slice(t, t + m * n),
-        "the exostate terms (v excitation: the exosystem signals or their product with x)": slice(
-            t + m * n, t + (m + q) * n
-        ),
-    }
-    missing = [
-        name
-        for name, sl in blocks.items()
-        if null.size and float(np.max(np.linalg.norm(null[:, sl], axis=1))) > 0.3
-    ]
-    if missing:
-        parts.append("not excited: " + "; ".join(missing))
-    parts.append(
-        "collect more intervals with richer exploration (at least 3 sinusoids of "
-        "distinct frequencies) before learning"
-    )
-    return "; ".join(parts)
+def _state_scale(data: IntervalData, state_scale: ArrayLike | None) -> NDArray[np.float64]:
+    """S (n,): the states' units in the iteration, as given or each state's RMS over the
+    data's interval end points (1 where that is zero, or when there are no intervals)."""
+    n = data.n
+    if state_scale is not None:
+        S = np.asarray(state_scale, dtype=float).reshape(-1)
+        if S.size != n or not np.all(np.isfinite(S)) or np.any(S <= 0):
+            raise LearningError(f"state_scale must be {n} positive finite numbers, got {S}")
+        return S
+    ends = np.concatenate([data.w_start[:, :n], data.w_end[:, :n]])
+    x_rms = np.sqrt(np.mean(ends**2, axis=0)) if data.intervals else np.ones(n)
+    return np.where(x_rms > 0, x_rms, 1.0)
+
+
+def _scaling(Q: NDArray, S: NDArray, w0: float, m: int) -> Scaling:
+    """tau = w0 t, x = S x_s, inputs unscaled, and the cost normalised to |Q_s| = 1."""
+    q_norm = float(np.linalg.norm(Q * np.outer(S, S) / w0, 2))
+    return Scaling(w0, S, np.ones(m), 1.0 / q_norm if q_norm > 0 else 1.0)
 
 
 def _translation_offset(
@@ -336,6 +342,50 @@ def _translation_offset(
     X = np.zeros((n, q))
     X[:, i] = c * d
     return X
+
+
+def _checked_rank(
+    thetas: list[EquilibratedTheta], data: IntervalData, needed: int, rtol: float
+) -> tuple[int, float]:
+    """Theta_0's numerical rank and condition number, after checking that every Theta_j is of
+    full column rank (``needed``); raises RankDeficientError with a report if one is not."""
+    n, m, q, rho = data.n, data.m, data.q, data.intervals
+    ranks, condition = [], math.inf
+    for j, th in enumerate(thetas):
+        sv = np.linalg.svd(th.scaled, compute_uv=False) if rho else np.zeros(1)
+        rj = int(np.sum(sv > rtol * sv[0])) if rho and sv[0] > 0 else 0
+        if rj < needed:
+            prefix = "" if j == 0 else f"Theta_{j} (xbar_{j} = x - X_{j} v): "
+            report = rank_report(th.scaled, n, m, q, rj, needed, rho, rtol)
+            raise RankDeficientError(prefix + report, rj, needed)
+        ranks.append(rj)
+        if j == 0:
+            condition = float(sv[0] / sv[needed - 1])
+    return ranks[0], condition
+
+
+def _regulator_in_si(
+    X_list: list[NDArray],
+    S_X: list[NDArray],
+    B_s: NDArray,
+    D_s: NDArray,
+    S: NDArray,
+    Qbar: ArrayLike | None,
+    Rbar: ArrayLike | None,
+    m: int,
+) -> tuple[NDArray, NDArray]:
+    """(X (n, q), U (m, q)) in SI units from the scaled Problem 1; empty without an exostate."""
+    n, q = X_list[0].shape
+    if not q:
+        return np.zeros((n, 0)), np.zeros((m, 0))
+    X_s, U = solve_output_regulation(X_list, S_X, B_s, D_s, S, Qbar, Rbar)
+    return X_s * S[:, None], U
+
+
+def _outcome(iterations: int, resets: int, converged: bool, why: str) -> str:
+    if converged:
+        return f"converged in {iterations} iterations ({resets} resets)"
+    return f"not converged after {iterations} iterations ({why})"
 
 
 def learn_from_data(
@@ -376,141 +426,30 @@ def learn_from_data(
     unmodelled acceleration enters it scaled by the offset.
     """
     n, m, q = data.n, data.m, data.q
-    Q = np.asarray(Q, dtype=float)
-    R = np.asarray(R, dtype=float)
-    if Q.shape != (n, n) or R.shape != (m, m):
-        raise LearningError(f"Q must be {n}x{n} and R {m}x{m}, got {Q.shape} and {R.shape}")
-    if q and (E is None or C is None or F is None):
-        raise LearningError("data carry an exostate (q > 0): C, E and F are required")
+    Q, R = _checked_weights(data, Q, R, C, E, F)
     needed = unknowns_count(n, m, q)
-    rho = data.intervals
-
-    # ---- scaling: tau = w0 t, x = S x_s, states at their RMS over the data -----------------
     w0 = float(time_unit)
-    if state_scale is not None:
-        S = np.asarray(state_scale, dtype=float).reshape(-1)
-        if S.size != n or not np.all(np.isfinite(S)) or np.any(S <= 0):
-            raise LearningError(f"state_scale must be {n} positive finite numbers, got {S}")
-    else:
-        ends = np.concatenate([data.w_start[:, :n], data.w_end[:, :n]])
-        x_rms = np.sqrt(np.mean(ends**2, axis=0)) if rho else np.ones(n)
-        S = np.where(x_rms > 0, x_rms, 1.0)
-    sw = np.concatenate([S, np.ones(q)])
-    q_norm = float(np.linalg.norm(Q * np.outer(S, S) / w0, 2))
-    sc = Scaling(w0, S, np.ones(m), 1.0 / q_norm if q_norm > 0 else 1.0)
+    S = _state_scale(data, state_scale)
+    sc = _scaling(Q, S, w0, m)
     Q_s, R_s = sc.weights(Q, R)
-    W = w0 * data.W / np.outer(sw, sw)[None]
-    G = w0 * data.G / sw[None, :, None]
-    ws, we = data.w_start / sw, data.w_end / sw
-
-    # ---- the X_j of Algorithm 2, in scaled coordinates --------------------------------------
-    if q:
-        C_s = np.asarray(C, dtype=float) * S[None, :]
-        F_s = np.asarray(F, dtype=float)
-        X_list = [np.zeros((n, q)), -np.linalg.pinv(C_s) @ F_s]
-        basis = scipy.linalg.null_space(np.kron(np.eye(q), C_s))
-        X_list += [unvec(b, (n, q)) for b in basis.T]
-    else:
-        X_list = [np.zeros((n, 0))]
-
+    scaled = scale_intervals(data.W, data.G, data.w_start, data.w_end, w0, S)
+    X_list = exostate_offsets(C, F, S, n, q)
     X_off = 0.0 if translation is None else _translation_offset(data, translation, E) / S[:, None]
-    # Theta_j with its columns equilibrated: the unknowns (H, K, (D - S)^T P) differ by many
-    # orders of magnitude, and an unequilibrated least-squares solve loses them to round-off
-    thetas = []
-    for X in X_list:
-        Th, d = _theta(data, np.hstack([np.eye(n), -(X + X_off)]), R_s, W, G, ws, we)
-        norms = np.linalg.norm(Th, axis=0)
-        thetas.append((Th, d, np.where(norms > 0, norms, 1.0)))
-    ranks, condition = [], math.inf
-    for j, (Th, _, cn) in enumerate(thetas):
-        sv = np.linalg.svd(Th / cn, compute_uv=False) if rho else np.zeros(1)
-        rj = int(np.sum(sv > rank_rtol * sv[0])) if rho and sv[0] > 0 else 0
-        if rj < needed:
-            prefix = "" if j == 0 else f"Theta_{j} (xbar_{j} = x - X_{j} v): "
-            raise RankDeficientError(
-                prefix + _rank_report(Th / cn, n, m, q, rj, needed, rho, rank_rtol), rj, needed
-            )
-        ranks.append(rj)
-        if j == 0:
-            condition = float(sv[0] / sv[needed - 1])
-    rank = ranks[0]
-    Theta0, delta0, _ = thetas[0]
-    # pinv(Theta_j) delta_j, computed once (the paper's Remark): vecs(P) -> unknowns
-    maps = [np.linalg.lstsq(Th / cn, d, rcond=None)[0] / cn[:, None] for Th, d, cn in thetas]
-    t_, mn = triangle_size(n), m * n
-    rows, cols = np.triu_indices(n)
-    weights = np.where(rows == cols, 1.0, 2.0)
-    H_map = maps[0][:t_] * np.where(rows == cols, 1.0, 0.5)[:, None]
-    K_map = maps[0][t_ : t_ + mn]
-
-    def riccati_map(P: NDArray) -> tuple[NDArray, NDArray]:
-        p = weights * P[rows, cols]  # vecs(P)
-        H = np.zeros((n, n))
-        H[rows, cols] = H_map @ p
-        return H + np.triu(H, 1).T, (K_map @ p).reshape(n, m).T
-
+    thetas = equilibrated_thetas(n, m, q, X_list, X_off, R_s, scaled)
+    rank, condition = _checked_rank(thetas, data, needed, rank_rtol)
+    maps = regression_maps(thetas)
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
-    P_s, K_s, k, resets, converged, _, history, why = value_iteration_loop(
-        riccati_map,
-        Q_s,
-        R_s,
-        P0_s,
-        steps or StepSequence(),
-        bounds or BoundSchedule(),
-        tol,
-        max_iterations,
+    steps, bounds = steps or StepSequence(), bounds or BoundSchedule()
+    P_s, _, k, resets, converged, _, history, why = value_iteration_loop(
+        RiccatiMap(maps[0], n, m), Q_s, R_s, P0_s, steps, bounds, tol, max_iterations
     )
-    p_star = vecs(P_s)
-    theta0 = maps[0] @ p_star
-    K_s = unvec(theta0[t_ : t_ + mn], (m, n))
-    residual = float(
-        np.linalg.norm(Theta0 @ theta0 - delta0 @ p_star)
-        / max(np.linalg.norm(delta0 @ p_star), 1e-300)
-    )
-
-    # ---- B, D, S(X_j) from data; (X*, U*) by Problem 1 --------------------------------------
-    Pinv = np.linalg.inv(P_s)
-    B_s = Pinv @ K_s.T @ R_s
-    if q:
-        Ms = [unvec((mp @ p_star)[t_ + mn :], (q, n)) for mp in maps]
-        D_s = Pinv @ Ms[0].T
-        S_X = [Pinv @ (Ms[0] - Mj).T for Mj in Ms]  # S(X_j) = D - P^-1 M_j^T
-        Qb = np.eye(n) if Qbar is None else np.asarray(Qbar, dtype=float)
-        Rb = np.eye(m) if Rbar is None else np.asarray(Rbar, dtype=float)
-        Iq = np.eye(q)
-        Nx = (
-            np.column_stack([vec(X) for X in X_list[2:]])
-            if len(X_list) > 2
-            else np.zeros((n * q, 0))
-        )
-        Ns = (
-            np.column_stack([vec(Sx) for Sx in S_X[2:]])
-            if len(X_list) > 2
-            else np.zeros((n * q, 0))
-        )
-        h = Nx.shape[1]
-        Gc = np.hstack([Ns, -np.kron(Iq, B_s)])
-        gc = vec(D_s) - vec(S_X[1])
-        Wx = np.kron(Iq, scipy.linalg.sqrtm(Qb).real * S[None, :])  # weights in SI units
-        Mo = scipy.linalg.block_diag(Wx @ Nx, np.kron(Iq, scipy.linalg.sqrtm(Rb).real))
-        co = np.concatenate([-Wx @ vec(X_list[1]), np.zeros(m * q)])
-        z, _ = solve_equality_constrained_lstsq(Mo, co, Gc, gc, rtol=1e-6)
-        X_s = X_list[1] + (unvec(Nx @ z[:h], (n, q)) if h else 0.0)
-        U_s = unvec(z[h:], (m, q))
-        X, U = X_s * S[:, None], U_s
-        D_si = D_s * S[:, None] * w0
-    else:
-        X, U, D_si = np.zeros((n, 0)), np.zeros((m, 0)), np.zeros((n, 0))
+    K_s, residual = regression_solution(maps[0], thetas[0], P_s, n, m)
+    B_s, D_s, S_X = implied_matrices(maps, P_s, K_s, R_s, n, m, q)
+    X, U = _regulator_in_si(X_list, S_X, B_s, D_s, S, Qbar, Rbar, m)
     K = sc.unscale_K(K_s)
-    L = U + K @ X
-    message = (
-        f"converged in {k} iterations ({resets} resets)"
-        if converged
-        else f"not converged after {k} iterations ({why})"
-    )
     return DDVIResult(
         K=K,
-        L=L,
+        L=U + K @ X,
         P=sc.unscale_P(P_s),
         X=X,
         U=U,
@@ -521,10 +460,10 @@ def learn_from_data(
         rank_needed=needed,
         condition=condition,
         residual=residual,
-        intervals=rho,
+        intervals=data.intervals,
         scaling=sc,
         B_implied=B_s * S[:, None] * w0,
-        D_implied=D_si,
+        D_implied=D_s * S[:, None] * w0,
         history=history,
-        message=message,
+        message=_outcome(k, resets, converged, why),
     )

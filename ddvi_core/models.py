@@ -3,8 +3,8 @@
 Hill frame: x radial, y along-track, z orbit normal; state [x, y, (z,) xdot, ydot, (zdot)].
 Relative dynamics: Clohessy-Wiltshire with J2 by Schweighart-Sedwick (the factor c) and
 differential drag linearised about the chief's circular orbit as in Harris et al. (the model of
-Basilisk's drag-rendezvous example).  See DESIGN.md sections 5 and 6 for what the paper prints
-and what its equations mean.
+Basilisk's drag-rendezvous example).  See docs/design.md, "The default mission" and "The
+paper's errata", for what the paper prints and what its equations mean.
 """
 
 from __future__ import annotations
@@ -96,7 +96,8 @@ def harmonic_exosystem(rates: list[float], constant: bool) -> NDArray[np.float64
 
 @dataclass(frozen=True)
 class DragRendezvous:
-    """Physical parameters of the differential-drag rendezvous (DESIGN.md section 5)."""
+    """Physical parameters of the differential-drag rendezvous (docs/design.md, "The default
+    mission")."""
 
     a_chief: float = 6678.136e3  # m
     inclination: float = math.radians(45.0)
@@ -228,7 +229,7 @@ def paper_printed_problem() -> RegulationProblem:
     Lambda1 with +n^2 in the z row, Lambda2 with hat-n = n-bar, B with one non-zero row, E at
     0.1..0.4 rad/s, the printed C, F, D, Q = 1.4 I6, R = 1e7 I3, n-bar = 0.00108 1/s,
     r_ref = 6378.136 km and r_c = 300 km as the table lists.  It is kept so that `ddvi check`
-    shows which assumption fails and why (DESIGN.md section 6)."""
+    shows which assumption fails and why (docs/design.md, "The paper's errata")."""
     nbar = 0.00108
     r_ref = 6378.136e3
     r_c = 300e3  # the paper's table: an altitude used as a radius (erratum)

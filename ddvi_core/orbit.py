@@ -61,8 +61,8 @@ def _stack(x: ArrayLike, name: str, width: int = 3) -> tuple[FloatArray, bool]:
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Cross product of (..., 3) arrays.  np.cross costs ~10 us a call in axis bookkeeping;
-    navigation calls it tens of times per sample."""
+    """Cross product of (..., 3) arrays.  On small arrays np.cross spends most of its time in
+    axis bookkeeping, and navigation calls this tens of times per sample."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
@@ -126,12 +126,9 @@ def elements_to_rv(
     r_N : (3,) position, m.
     v_N : (3,) velocity, m/s.
     """
-    a, e, i, raan, argp, f, mu = (
-        _scalar(x, n)
-        for x, n in zip(
-            (a, e, i, raan, argp, f, mu), ("a", "e", "i", "raan", "argp", "f", "mu"), strict=True
-        )
-    )
+    names = ("a", "e", "i", "raan", "argp", "f", "mu")
+    values = (a, e, i, raan, argp, f, mu)
+    a, e, i, raan, argp, f, mu = (_scalar(x, k) for x, k in zip(values, names, strict=True))
     if a <= 0.0:
         raise ValueError(f"a must be positive, got {a}")
     if not 0.0 <= e < 1.0:
@@ -312,16 +309,9 @@ def hill_to_curvilinear(r_c: ArrayLike, v_c: ArrayLike, x_hill: ArrayLike) -> Fl
     phi = np.arctan2(R[:, 2], rho)
     rho_dot = (R[:, 0] * Rd[:, 0] + R[:, 1] * Rd[:, 1]) / rho
     phi_dot = (Rd[:, 2] * rho - R[:, 2] * rho_dot) / (rn * rn)
-    out = np.column_stack(
-        [
-            rn - r0,
-            r0 * theta,
-            r0 * phi,
-            rn_dot - r0dot,
-            r0dot * theta + r0 * theta_dot,
-            r0dot * phi + r0 * phi_dot,
-        ]
-    )
+    position = (rn - r0, r0 * theta, r0 * phi)
+    rate = (rn_dot - r0dot, r0dot * theta + r0 * theta_dot, r0dot * phi + r0 * phi_dot)
+    out = np.column_stack([*position, *rate])
     return out[0] if single else out
 
 

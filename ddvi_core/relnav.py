@@ -36,8 +36,8 @@ FRAMES = ("curvilinear", "path")
 
 
 # Navigation evaluates this once per sample per deputy, on single 3-vectors: numpy's per-call
-# overhead (microseconds) exceeds the arithmetic by far, so the single-sample kernels below work
-# on Python floats.  tests/test_relnav.py checks them against the vectorised ddvi_core.orbit
+# overhead exceeds the arithmetic by far, so the single-sample kernels below work on Python
+# floats.  tests/core/test_relnav.py checks them against the vectorised ddvi_core.orbit
 # and ddvi_core.truth functions they mirror.
 _Vec = tuple[float, float, float]
 _J2_K = -1.5 * J2_EARTH * MU_EARTH * R_EARTH * R_EARTH
@@ -122,8 +122,8 @@ def _curvilinear3(rc: _Vec, vc: _Vec, rd: _Vec, vd: _Vec) -> tuple[float, ...]:
 
 def _vec3(a: ArrayLike, name: str) -> _Vec:
     """``a`` as three finite floats; ValueError naming ``name`` otherwise.  Element by element,
-    not through np.asarray: this runs four times a sample and numpy's call overhead was a third
-    of the navigation's time; other array-likes take numpy's path."""
+    not through np.asarray: this runs four times a sample, and numpy's call overhead would be a
+    large share of the navigation's time; other array-likes take numpy's path."""
     v = a
     if not isinstance(v, np.ndarray | list | tuple):
         try:

@@ -11,8 +11,9 @@ A max(0, n_N · v/|v|) with n_N = [BN]^T n_B, and the force is -1/2 rho |v|^2 C_
 Differences from Basilisk's drag-rendezvous example worth knowing when comparing the backends:
 Basilisk reads the density once per task step (60 s there) and holds it over the step, here it
 is evaluated at every integrator stage; its example uses rho0 = 2.022e-11 kg/m^3 (the paper and
-DESIGN.md: 2.2e-11) with the reference radius R_E + 300 km; its spacecraft follow the commanded
-attitude reference, which rotates with the Hill frame (``attitude_frame="hill"`` here).
+docs/design.md, "The default mission": 2.2e-11) with the reference radius R_E + 300 km; its
+spacecraft follow the commanded attitude reference, which rotates with the Hill frame
+(``attitude_frame="hill"`` here).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ __all__ = [
 
 _C45 = math.cos(math.radians(45.0))
 
-# Integrator settings, checked by the convergence tests in tests/test_truth.py: on 60 s calls
+# Integrator settings, checked by the convergence tests in tests/core/test_truth.py: on 60 s calls
 # (J2 and drag on) halving max_step moves the chief-deputy relative Hill position after one orbit
 # by 1e-7 m; on a tolerance-driven one-orbit call, tightening rtol/atol ten times moves it 4e-7 m.
 DEFAULT_RTOL: float = 1e-11
@@ -59,7 +60,8 @@ DEFAULT_MAX_STEP: float = 60.0  # s
 
 @dataclass(frozen=True)
 class Spacecraft:
-    """Mass and drag-facet parameters of one spacecraft (DESIGN.md section 5 defaults).
+    """Mass and drag-facet parameters of one spacecraft (defaults: docs/design.md, "The default
+    mission").
 
     Attributes
     ----------
@@ -244,6 +246,114 @@ def _drag(
 # ---------------------------------------------------------------------------------- propagation
 
 
+def _checked_interval(t0: float, t1: float) -> tuple[float, float]:
+    """(t0, t1) as floats, checked finite with t1 > t0."""
+    t0f, t1f = float(t0), float(t1)
+    if not (math.isfinite(t0f) and math.isfinite(t1f)) or t1f <= t0f:
+        raise ValueError(f"t0 and t1 must be finite with t1 > t0, got t0={t0!r}, t1={t1!r}")
+    return t0f, t1f
+
+
+def _checked_attitude(attitude: ArrayLike, n: int) -> FloatArray:
+    """The (n, 3, 3) attitude DCMs, checked proper rotations, one per craft."""
+    C, _ = _dcm_stack(attitude, "attitude")
+    if C.shape[0] != n:
+        raise ValueError(f"attitude must have shape ({n}, 3, 3), got {C.shape}")
+    return C
+
+
+def _check_settings(
+    attitude_frame: str, rtol: float, atol_pos: float, atol_vel: float, max_step: float, mu: float
+) -> None:
+    """Raise ValueError unless the attitude frame is known and the settings are positive."""
+    if attitude_frame not in ("inertial", "hill"):
+        raise ValueError(f"attitude_frame must be 'inertial' or 'hill', got {attitude_frame!r}")
+    for name, value in (("rtol", rtol), ("atol_pos", atol_pos), ("atol_vel", atol_vel)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"{name} must be positive, got {value!r}")
+    if not (math.isfinite(mu) and mu > 0.0):
+        raise ValueError(f"mu must be positive, got {mu!r}")
+    if not max_step > 0.0:
+        raise ValueError(f"max_step must be positive, got {max_step!r}")
+
+
+def _checked_t_eval(t_eval: ArrayLike | None, t0: float, t1: float) -> FloatArray | None:
+    """t_eval as a (K,) increasing array inside [t0, t1], or None."""
+    if t_eval is None:
+        return None
+    te = np.asarray(t_eval, dtype=float).ravel()
+    if te.size == 0 or not np.all(np.isfinite(te)):
+        raise ValueError("t_eval must be a non-empty array of finite times")
+    if te[0] < t0 or te[-1] > t1 or np.any(np.diff(te) < 0.0):
+        raise ValueError(f"t_eval must be increasing and inside [{t0}, {t1}]")
+    return te
+
+
+class _StackedDynamics:
+    """dy/dt (6N,) of N craft stacked in y (6N,): two-body + J2 gravity and facet drag, with
+    the attitudes C (N, 3, 3) held ([BN], or [BH] when ``hill``).
+
+    The right-hand side runs in scalar Python, craft by craft: for the few craft of a mission,
+    numpy's per-call overhead on 3-vectors costs several times the arithmetic (a vectorised
+    form only wins beyond about a dozen craft), and DOP853 calls it 16 times a 60 s step."""
+
+    def __init__(
+        self,
+        C: FloatArray,
+        craft: Spacecraft | Sequence[Spacecraft],
+        atmosphere: Atmosphere,
+        *,
+        hill: bool,
+        j2: bool,
+        drag: bool,
+        mu: float,
+    ) -> None:
+        n = C.shape[0]
+        bc, normal_B = _craft_arrays(craft, n)
+        normal = np.einsum("nji,nj->ni", C, normal_B)  # [BN]^T n_B, or [BH]^T n_B in "hill" mode
+        self.n, self.hill, self.j2, self.mu = n, hill, j2, mu
+        self.use_drag = drag and atmosphere.density_factor > 0.0 and bool(np.any(bc > 0.0))
+        rho_scale = atmosphere.density_factor * atmosphere.rho0
+        self.r_ref = atmosphere.r_planet + atmosphere.h_ref
+        self.inv_h = 1.0 / atmosphere.scale_height
+        self.k_j2 = -1.5 * J2_EARTH * mu * R_EARTH * R_EARTH
+        self.nx, self.ny, self.nz = (normal[:, k].tolist() for k in range(3))
+        self.drag_k = (-0.5 * bc * rho_scale).tolist()
+
+    def __call__(self, _t: float, y: FloatArray) -> FloatArray:
+        n, mu, j2, k_j2 = self.n, self.mu, self.j2, self.k_j2
+        use_drag, hill, r_ref, inv_h = self.use_drag, self.hill, self.r_ref, self.inv_h
+        nx_, ny_, nz_, drag_k = self.nx, self.ny, self.nz, self.drag_k
+        Y = y.tolist()
+        out = [0.0] * (6 * n)
+        for i in range(n):
+            o = 6 * i
+            x, yy, z, vx, vy, vz = Y[o : o + 6]
+            r2 = x * x + yy * yy + z * z
+            rn = math.sqrt(r2)
+            inv_r3 = 1.0 / (r2 * rn)
+            f_xy = f_z = -mu * inv_r3
+            if j2:
+                zr2 = z * z / r2
+                k = k_j2 * inv_r3 / r2
+                f_xy, f_z = f_xy + k * (1.0 - 5.0 * zr2), f_z + k * (3.0 - 5.0 * zr2)
+            ax, ay, az = f_xy * x, f_xy * yy, f_z * z
+            if use_drag:
+                if hill:
+                    # n_N·v with n_N = n_H[0] x_hat + n_H[1] y_hat + n_H[2] z_hat:
+                    # x_hat·v = r·v/|r|, y_hat·v = |r × v|/|r|, z_hat·v = 0.
+                    hx, hy, hz = yy * vz - z * vy, z * vx - x * vz, x * vy - yy * vx
+                    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+                    nv = (nx_[i] * (x * vx + yy * vy + z * vz) + ny_[i] * hn) / rn
+                else:
+                    nv = nx_[i] * vx + ny_[i] * vy + nz_[i] * vz
+                if nv > 0.0:
+                    kd = drag_k[i] * math.exp((r_ref - rn) * inv_h) * nv
+                    ax, ay, az = ax + kd * vx, ay + kd * vy, az + kd * vz
+            out[o : o + 6] = (vx, vy, vz, ax, ay, az)
+        return np.array(out)
+
+
 def propagate(
     state: ArrayLike,
     t0: float,
@@ -290,86 +400,23 @@ def propagate(
 
     Notes
     -----
-    With the defaults a 60 s call is one DOP853 step (the tolerances are met, max_step binds):
-    about 0.5 ms for 2 to 17 craft, 2 s for a 40-orbit mission (benchmarks/bench_truth.py).
+    With the defaults a 60 s call is one DOP853 step (the tolerances are met, max_step binds);
+    benchmarks/bench_truth.py measures its cost for 2 to 17 craft and for a 40-orbit mission.
     Halving the step changes the relative Hill position after one orbit by about 1e-7 m.
     """
     y0, _ = _stack(state, "state", 6)
     n = y0.shape[0]
-    t0f, t1f = float(t0), float(t1)
-    if not (math.isfinite(t0f) and math.isfinite(t1f)) or t1f <= t0f:
-        raise ValueError(f"t0 and t1 must be finite with t1 > t0, got t0={t0!r}, t1={t1!r}")
-    C, _ = _dcm_stack(attitude, "attitude")
-    if C.shape[0] != n:
-        raise ValueError(f"attitude must have shape ({n}, 3, 3), got {C.shape}")
-    if attitude_frame not in ("inertial", "hill"):
-        raise ValueError(f"attitude_frame must be 'inertial' or 'hill', got {attitude_frame!r}")
-    for name, value in (("rtol", rtol), ("atol_pos", atol_pos), ("atol_vel", atol_vel)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f"{name} must be positive, got {value!r}")
-    if not (math.isfinite(mu) and mu > 0.0):
-        raise ValueError(f"mu must be positive, got {mu!r}")
-    if not max_step > 0.0:
-        raise ValueError(f"max_step must be positive, got {max_step!r}")
-    te = None
-    if t_eval is not None:
-        te = np.asarray(t_eval, dtype=float).ravel()
-        if te.size == 0 or not np.all(np.isfinite(te)):
-            raise ValueError("t_eval must be a non-empty array of finite times")
-        if te[0] < t0f or te[-1] > t1f or np.any(np.diff(te) < 0.0):
-            raise ValueError(f"t_eval must be increasing and inside [{t0f}, {t1f}]")
+    t0f, t1f = _checked_interval(t0, t1)
+    C = _checked_attitude(attitude, n)
+    _check_settings(attitude_frame, rtol, atol_pos, atol_vel, max_step, mu)
+    te = _checked_t_eval(t_eval, t0f, t1f)
 
     # imported here, not at module level: navigation imports this module for its constants and
-    # kernels and never integrates (scipy.integrate costs 0.4 s of start-up per process)
+    # kernels and never integrates, and scipy.integrate adds markedly to a process's start-up
     from scipy.integrate import solve_ivp
 
-    bc, normal_B = _craft_arrays(craft, n)
-    normal = np.einsum("nji,nj->ni", C, normal_B)  # [BN]^T n_B, or [BH]^T n_B in "hill" mode
-    use_drag = drag and atmosphere.density_factor > 0.0 and bool(np.any(bc > 0.0))
     hill = attitude_frame == "hill"
-    rho_scale = atmosphere.density_factor * atmosphere.rho0
-    r_ref = atmosphere.r_planet + atmosphere.h_ref
-    inv_h = 1.0 / atmosphere.scale_height
-    half_bc = -0.5 * bc * rho_scale
-    nx, ny, nz = normal[:, 0], normal[:, 1], normal[:, 2]
-    k_j2 = -1.5 * J2_EARTH * mu * R_EARTH * R_EARTH
-
-    # The right-hand side in scalar Python, craft by craft: numpy's per-call overhead on
-    # 3-vectors made the vectorised form 63 us a call for three craft against 7.5 us here
-    # (and 37 us against 55 us for seventeen); DOP853 calls it 16 times a 60 s step.
-    nx_, ny_, nz_ = nx.tolist(), ny.tolist(), nz.tolist()
-    drag_k = half_bc.tolist()
-
-    def rhs(_t: float, y: FloatArray) -> FloatArray:
-        Y = y.tolist()
-        out = [0.0] * (6 * n)
-        for i in range(n):
-            o = 6 * i
-            x, yy, z, vx, vy, vz = Y[o : o + 6]
-            r2 = x * x + yy * yy + z * z
-            rn = math.sqrt(r2)
-            inv_r3 = 1.0 / (r2 * rn)
-            f_xy = f_z = -mu * inv_r3
-            if j2:
-                zr2 = z * z / r2
-                k = k_j2 * inv_r3 / r2
-                f_xy, f_z = f_xy + k * (1.0 - 5.0 * zr2), f_z + k * (3.0 - 5.0 * zr2)
-            ax, ay, az = f_xy * x, f_xy * yy, f_z * z
-            if use_drag:
-                if hill:
-                    # n_N·v with n_N = n_H[0] x_hat + n_H[1] y_hat + n_H[2] z_hat:
-                    # x_hat·v = r·v/|r|, y_hat·v = |r × v|/|r|, z_hat·v = 0.
-                    hx, hy, hz = yy * vz - z * vy, z * vx - x * vz, x * vy - yy * vx
-                    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
-                    nv = (nx_[i] * (x * vx + yy * vy + z * vz) + ny_[i] * hn) / rn
-                else:
-                    nv = nx_[i] * vx + ny_[i] * vy + nz_[i] * vz
-                if nv > 0.0:
-                    kd = drag_k[i] * math.exp((r_ref - rn) * inv_h) * nv
-                    ax, ay, az = ax + kd * vx, ay + kd * vy, az + kd * vz
-            out[o : o + 6] = (vx, vy, vz, ax, ay, az)
-        return np.array(out)
-
+    rhs = _StackedDynamics(C, craft, atmosphere, hill=hill, j2=j2, drag=drag, mu=mu)
     atol = np.tile(np.array([atol_pos] * 3 + [atol_vel] * 3), n)
     sol = solve_ivp(
         rhs,
@@ -393,7 +440,8 @@ def propagate(
 
 
 def rendezvous_initial_states(mu: float = MU_EARTH) -> FloatArray:
-    """Initial inertial states of the ``rendezvous`` scenario (DESIGN.md section 5).
+    """Initial inertial states of the ``rendezvous`` scenario (docs/design.md, "The default
+    mission").
 
     Chief: a = 6678.136 km, e = 0, i = 45 deg, RAAN = 20 deg, argp = 30 deg, f = 20 deg.
     Deputy: a = 6678.376 km, f = 19.75 deg, the other elements equal.

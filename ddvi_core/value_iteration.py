@@ -3,7 +3,7 @@ time/state/cost scaling that makes it converge on orbital problems.
 
 Value iteration is forward Euler on dP/dtau = A^T P + P A + Q - P B R^-1 B^T P with steps
 eps_k.  Its speed is set by the slowest closed-loop rate measured in the iteration's time unit,
-so the problem is first rescaled (DESIGN.md sections 6 and 7):
+so the problem is first rescaled (docs/design.md, "The paper's errata" and "Expected figures"):
 
     tau = w0 t,   x = S x_s,   u = s_u u_s,   cost multiplied by c
     A_s = S^-1 A S / w0,  B_s = S^-1 B s_u / w0,  Q_s = c S Q S / w0,  R_s = c s_u R s_u / w0
@@ -265,8 +265,9 @@ def value_iteration(
 
     A (n,n), B (n,m), Q (n,n), R (m,m).  ``scaling``: True (default) for
     :func:`balanced_scaling`, False for the problem's own units, or a :class:`Scaling`.
-    P0 is given in scaled units (default 1e-3 I, small against P* as DESIGN.md section 7
-    advises).  ``tol`` bounds the scaled Riccati residual relative to |P_k| at the stop.
+    P0 is given in scaled units (default 1e-3 I, small against P* as docs/design.md,
+    "Expected figures", advises).  ``tol`` bounds the scaled Riccati residual relative to |P_k|
+    at the stop.
     """
     A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
     n, m = B.shape

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: 2 cores, services need them
+# before numpy is imported: BLAS threads would compete with the services for the cores
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import json
@@ -130,7 +131,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from services.ground.monitor import monitor_command
+    from services.ground.tap import monitor_command
 
     return int(monitor_command(args) or 0)
 
@@ -163,16 +164,32 @@ def _check_arguments(p: argparse.ArgumentParser) -> None:
     p.set_defaults(func=cmd_check)
 
 
-def _bench_arguments(p: argparse.ArgumentParser) -> None:
-    from benchmarks.run import build_parser as bench_parser
-    from benchmarks.run import run as bench_run
+def _benchmarks_missing() -> str | None:
+    """Why ``ddvi bench`` cannot run, in one line, or None: the benchmarks are the top-level
+    ``benchmarks`` package (the repository's ``benchmarks/`` folder), which an installation
+    from a checkout provides and others may not."""
+    try:
+        import benchmarks.run  # noqa: F401
+    except ImportError as exc:
+        return (
+            f"ddvi bench: cannot import the benchmarks ({exc}); they are the benchmarks/ folder "
+            "of the repository: install ddvi-fsw from a checkout (pip install -e .)"
+        )
+    return None
 
+
+def _bench_arguments(p: argparse.ArgumentParser) -> None:
+    try:
+        from benchmarks.run import build_parser as bench_parser
+        from benchmarks.run import run as bench_run
+    except ImportError:
+        return  # listed by name alone; ``ddvi bench`` itself says why (see main)
     bench_parser(p)
     p.set_defaults(func=bench_run)
 
 
 def _monitor_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.monitor import add_monitor_arguments
+    from services.ground.tap import add_monitor_arguments
 
     add_monitor_arguments(p)
     p.set_defaults(func=cmd_monitor)
@@ -231,6 +248,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     command = next((a for a in argv if not a.startswith("-")), None)
+    if command == "bench" and (why := _benchmarks_missing()):
+        print(why, file=sys.stderr)
+        return EXIT_USAGE
     args = build_parser(command if command in COMMANDS else None).parse_args(argv)
     return int(args.func(args))
 

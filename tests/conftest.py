@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import pytest
 
-from services.ground.launcher import free_port as _free_port
 from tests.support import unique_run_name
 
 
@@ -17,4 +16,6 @@ def run_name() -> str:
 @pytest.fixture
 def free_port() -> int:
     """A loopback TCP port nobody listens on right now."""
-    return _free_port()
+    from services.ground.launcher import free_port as find_free_port  # only tests that need it
+
+    return find_free_port()

@@ -1,26 +1,12 @@
-"""The bus substrate: Zenoh sessions and their settings, the endpoint every service publishes
-and subscribes through (sequence numbers, replay guards, batching), link impairment models and
-liveliness.
+"""The bus substrate: Zenoh sessions and their settings (``session``), the endpoint every
+service publishes and subscribes through (``endpoint``: sequence numbers, batching), its replay
+guards (``guards``), link impairment models (``links``) and liveliness (``liveliness``).
 
 May import: ``services.interface``, zenoh, numpy. Not configuration, models or processes.
 """
 
-from services.bus.endpoint import (
-    DEFAULT_HUB,
-    EPHEMERAL_LOOPBACK,
-    SEQUENCE_REASONS,
-    SERVICE_ZENOH_RUNTIME,
-    Bus,
-    BusSettings,
-    SequenceGuard,
-    SequenceGuards,
-    check_name,
-    open_session,
-    queue_handler,
-    wait_for_alive,
-    watch_alive,
-    zenoh_config,
-)
+from services.bus.endpoint import Bus, queue_handler
+from services.bus.guards import SEQUENCE_REASONS, SequenceGuard, SequenceGuards
 from services.bus.links import (
     LINK_PARAMETERS,
     LinkModel,
@@ -29,6 +15,16 @@ from services.bus.links import (
     impairs_truth,
     rule_latency,
     select_rule,
+)
+from services.bus.liveliness import wait_for_alive, watch_alive
+from services.bus.session import (
+    DEFAULT_HUB,
+    EPHEMERAL_LOOPBACK,
+    SERVICE_ZENOH_RUNTIME,
+    BusSettings,
+    check_name,
+    open_session,
+    zenoh_config,
 )
 
 __all__ = [

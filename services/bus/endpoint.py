@@ -1,19 +1,8 @@
-"""The bus substrate: zenoh session settings, and one typed bus endpoint per service.
+"""The bus endpoint: one typed ``Bus`` per service on a zenoh session (``services.bus.session``).
 
-Endpoint convention (DESIGN.md section 2)
------------------------------------------
-Peer mode on loopback, multicast scouting OFF, explicit endpoints. One designated process, the
-*hub* (the launcher, or a Python process in router mode), listens on the rendezvous endpoint
-``tcp/127.0.0.1:7447`` (``DEFAULT_HUB``; a deployment picks another port in its ``[bus]``
-table). Every service ``connect``s to the hub and also listens on an ephemeral loopback port
-(``tcp/127.0.0.1:0``). Zenoh 1.x peers do not relay for each other, so the mesh is formed by gossip
-scouting (on by default): each peer learns the others' listening endpoints through the hub and
-connects to them directly. A service started before the hub keeps retrying its connect.
-``BusSettings.hub()`` turns a service's settings into the hub's. Client mode (services connect to a
-router, which relays) is the option for multi-host deployments.
-
-Keys are ``ddvi/<run>/<topic>``; liveliness tokens ``ddvi/<run>/alive/<service>``. Payloads are
-encoded and decoded only by ``services.interface.schema``.
+Keys are ``ddvi/<run>/<topic>``; the liveliness token ``ddvi/<run>/alive/<service>``
+(``services.bus.liveliness`` watches them). Payloads are encoded and decoded only by
+``services.interface.schema``.
 
 Threading
 ---------
@@ -27,23 +16,21 @@ Counters and sequence numbers are guarded by locks; nothing raised in a callback
 from __future__ import annotations
 
 import functools
-import json
 import logging
-import math
 import queue
-import re
 import threading
 import time
 import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from fnmatch import fnmatchcase
 from typing import Any
 
 import zenoh
 
+from services.bus.guards import SEQUENCE_REASONS, SequenceGuards
 from services.bus.links import CLOCKS, LinkModel, LinkRule, rule_latency, select_rule
+from services.bus.session import check_name, key_prefix
 from services.interface import (
     MAX_BATCH,
     MAX_PAYLOAD,
@@ -55,102 +42,15 @@ from services.interface import (
     pack_batch,
     unpack_batch,
 )
+from services.interface.topics import alive_topic
 
 log = logging.getLogger("ddvi.bus")
 
-MODES = ("peer", "client", "router")
-DEFAULT_PORT = 7447
-DEFAULT_HUB = f"tcp/127.0.0.1:{DEFAULT_PORT}"
-EPHEMERAL_LOOPBACK = "tcp/127.0.0.1:0"
 MSGPACK_ENCODING = "application/msgpack"
-
-_ENDPOINT = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
-_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 _LINK_COUNTERS = ("dropped", "duplicated", "reordered", "delayed")
-REPLAY_WINDOW = 256
-"""Sequence numbers a subscriber remembers per (publisher, topic) to reject duplicates."""
-SEQUENCE_REASONS = ("duplicate", "stale")
-"""Why a well-formed message is refused by its sequence number (see ``SequenceGuard``)."""
 
 Handler = Callable[[str, Message], None]
 """A subscription handler: ``handler(topic, message)``, topic relative to ``ddvi/<run>/``."""
-
-
-@dataclass
-class BusSettings:
-    """A deployment's ``[bus]`` table: zenoh mode and explicit endpoints.
-
-    Defaults are a service's side of the convention above: peer mode, listen on an ephemeral
-    loopback port, connect to ``DEFAULT_HUB``. Invalid values raise ValueError naming the key.
-    """
-
-    mode: str = "peer"
-    listen: list[str] = field(default_factory=lambda: [EPHEMERAL_LOOPBACK])
-    connect: list[str] = field(default_factory=lambda: [DEFAULT_HUB])
-
-    def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ValueError(f"bus.mode: expected one of {'|'.join(MODES)}, got {self.mode!r}")
-        for key in ("listen", "connect"):
-            endpoints = getattr(self, key)
-            if isinstance(endpoints, str) or not isinstance(endpoints, list | tuple):
-                raise ValueError(f"bus.{key}: expected a list of endpoints, got {endpoints!r}")
-            for i, endpoint in enumerate(endpoints):
-                if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint):
-                    raise ValueError(
-                        f"bus.{key}[{i}]: expected an endpoint '<proto>/<address>', "
-                        f"got {endpoint!r}"
-                    )
-            setattr(self, key, list(endpoints))
-        if self.mode == "client" and not self.connect:
-            raise ValueError("bus.connect: client mode needs at least one router endpoint")
-        if self.mode in ("peer", "router") and not self.listen:
-            raise ValueError(
-                f"bus.listen: {self.mode} mode needs an endpoint to listen on "
-                f"(peers do not relay; use '{EPHEMERAL_LOOPBACK}' for an ephemeral port)"
-            )
-
-    @classmethod
-    def from_table(cls, table: Mapping[str, Any]) -> BusSettings:
-        """Build from a deployment's ``[bus]`` table; unknown keys raise ValueError."""
-        for key in table:
-            if key not in ("mode", "listen", "connect"):
-                raise ValueError(f"bus.{key}: unknown key; expected mode, listen or connect")
-        return cls(**table)
-
-    def hub(self, mode: str = "peer") -> BusSettings:
-        """Settings for the one process that listens where every service connects."""
-        return BusSettings(mode=mode, listen=list(self.connect), connect=[])
-
-
-SERVICE_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
-"""A service's ``ZENOH_RUNTIME``: one receive worker instead of two, since on two cores each
-extra thread only adds wake-ups (zenoh reads the variable when a session opens; one already set
-wins).  Not the launcher's, which as the hub (or router) reads every service's link."""
-
-
-def zenoh_config(settings: BusSettings) -> zenoh.Config:
-    """The zenoh configuration for ``settings``: explicit endpoints, no multicast scouting."""
-    config = zenoh.Config()
-    config.insert_json5("mode", json.dumps(settings.mode))
-    config.insert_json5("listen/endpoints", json.dumps(settings.listen))
-    config.insert_json5("connect/endpoints", json.dumps(settings.connect))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("scouting/gossip/enabled", "true")
-    # Retry a not-yet-listening hub quickly, so start-up order does not matter.
-    retry = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2.0}
-    config.insert_json5("connect/retry", json.dumps(retry))
-    return config
-
-
-@contextmanager
-def open_session(settings: BusSettings) -> Iterator[zenoh.Session]:
-    """Open a zenoh session and always close it (an open session can hang interpreter exit)."""
-    session = zenoh.open(zenoh_config(settings))
-    try:
-        yield session
-    finally:
-        session.close()
 
 
 def queue_handler(q: queue.SimpleQueue[Any] | queue.Queue[Any]) -> Handler:
@@ -167,13 +67,6 @@ def queue_handler(q: queue.SimpleQueue[Any] | queue.Queue[Any]) -> Handler:
     return handler
 
 
-def check_name(what: str, name: str) -> str:
-    """Validate a run or service name (one key-expression chunk, no wildcards)."""
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise ValueError(f"{what}: expected [A-Za-z0-9_.-]+ (no '/'), got {name!r}")
-    return name
-
-
 def _check_topic(topic: str) -> str:
     if (
         not isinstance(topic, str)
@@ -185,59 +78,6 @@ def _check_topic(topic: str) -> str:
     ):
         raise ValueError(f"topic: expected a/b/c without wildcards, got {topic!r}")
     return topic
-
-
-class SequenceGuard:
-    """Anti-replay window of one subscriber for one (publisher, topic): like a CCSDS or IPsec
-    receiver, it accepts each sequence number once, in any order within ``window`` of the
-    highest seen.  ``check(seq, t)`` returns None (accept) or why not: ``"duplicate"`` (seen
-    already: a replay, or a copy the link duplicated), ``"stale"`` (older than the window: a
-    replay of old traffic).  A publisher's time never goes back as its seq goes up, so a seq
-    at or below the highest with a time after the newest is a restarted publisher counting
-    from 0 again: the window starts over."""
-
-    def __init__(self, window: int = REPLAY_WINDOW) -> None:
-        if window < 1:
-            raise ValueError(f"SequenceGuard.window: expected >= 1, got {window}")
-        self.window = window
-        self.highest = -1
-        self.newest_t = -math.inf
-        self._seen = 0  # bit k: highest - k was accepted (k < window), as RFC 4303's bitmap
-        self._mask = (1 << window) - 1
-
-    def check(self, seq: int, t: float) -> str | None:
-        highest = self.highest
-        if seq <= highest and t > self.newest_t:
-            highest = self.highest = -1  # the publisher restarted
-            self._seen = 0
-        elif seq <= highest - self.window:
-            return "stale"
-        if seq > highest:
-            ahead = seq - highest
-            self._seen = ((self._seen << ahead) | 1) & self._mask if ahead < self.window else 1
-            self.highest = seq
-        else:
-            bit = 1 << (highest - seq)
-            if self._seen & bit:
-                return "duplicate"
-            self._seen |= bit
-        if t > self.newest_t:
-            self.newest_t = t
-        return None
-
-
-class SequenceGuards:
-    """One ``SequenceGuard`` per (publisher, topic), made on first use."""
-
-    def __init__(self) -> None:
-        self._guards: dict[tuple[str, str], SequenceGuard] = {}
-
-    def check(self, message: Message, topic: str) -> str | None:
-        """``SequenceGuard.check`` of the message's publisher on ``topic``."""
-        guard = self._guards.get((message.src, topic))
-        if guard is None:
-            guard = self._guards[(message.src, topic)] = SequenceGuard()
-        return guard.check(message.seq, message.t)
 
 
 @dataclass
@@ -286,7 +126,7 @@ class Bus:
         self.session = session
         self.run = check_name("run", run)
         self.service = check_name("service", service)
-        self.prefix = f"ddvi/{run}/"
+        self.prefix = key_prefix(run)
         self._pub_lock = threading.RLock()  # seq counters and publishers
         self._count_lock = threading.Lock()  # counters only; never held while calling out
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -598,7 +438,7 @@ class Bus:
     def declare_alive(self) -> None:
         """Declare the liveliness token ``ddvi/<run>/alive/<service>`` (idempotent)."""
         if self._token is None:
-            key = f"{self.prefix}alive/{self.service}"
+            key = self.prefix + alive_topic(self.service)
             self._token = self.session.liveliness().declare_token(key)
 
     def close(self) -> None:
@@ -623,51 +463,3 @@ class Bus:
 
     def __exit__(self, *_exc: object) -> None:
         self.close()
-
-
-def watch_alive(
-    session: zenoh.Session, run: str, pattern: str, on_change: Callable[[str, bool], None]
-) -> Any:
-    """Call ``on_change(service, alive)`` for every service matching ``pattern`` (a shell-style
-    glob, ``ctrl-*``) whose liveliness token is there now or comes and goes later.  Returns the
-    zenoh subscriber: undeclare it when done.  ``on_change`` runs on a zenoh thread and must
-    not raise."""
-    prefix = f"ddvi/{check_name('run', run)}/alive/"
-
-    def on_sample(sample: zenoh.Sample) -> None:
-        try:
-            name = str(sample.key_expr)[len(prefix) :]
-            if fnmatchcase(name, pattern):  # zenoh's own '*' is a whole chunk only
-                on_change(name, sample.kind == zenoh.SampleKind.PUT)
-        except Exception:
-            log.exception("liveliness callback failed")
-
-    return session.liveliness().declare_subscriber(prefix + "*", on_sample, history=True)
-
-
-def wait_for_alive(
-    session: zenoh.Session, run: str, services: Iterable[str], timeout: float
-) -> set[str]:
-    """Wait until every named service's liveliness token is seen or ``timeout`` s pass.
-
-    Returns the subset of ``services`` alive at return time.
-    """
-    wanted = set(services)
-    alive: set[str] = set()
-    changed = threading.Condition()
-
-    def on_change(name: str, up: bool) -> None:
-        with changed:
-            if up:
-                alive.add(name)
-            else:
-                alive.discard(name)
-            changed.notify_all()
-
-    subscriber = watch_alive(session, run, "*", on_change)
-    try:
-        with changed:
-            changed.wait_for(lambda: wanted <= alive, timeout)
-            return wanted & alive
-    finally:
-        subscriber.undeclare()

@@ -4,7 +4,8 @@ Pure logic, no I/O and no zenoh: the bus feeds received items in and delivers wh
 Fully deterministic for a given seed and sequence of calls.
 
 Inputs/outputs:
-    LinkSpec(delay, jitter, loss, duplicate, reorder)   validated parameters
+    LinkSpec(delay, jitter, loss, duplicate, reorder)   validated parameters (the one definition
+                                     of a link's parameters; a deployment's [[link]] extends it)
     LinkRule(publisher, topic, spec)  which messages a spec applies to (a deployment's [[link]])
     select_rule, rule_latency          the rule that applies to a message, and its latency
     LinkModel(spec, seed, clock)
@@ -33,8 +34,8 @@ from __future__ import annotations
 import heapq
 import math
 import random
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from collections.abc import Sequence
+from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from typing import Any
 
@@ -54,25 +55,22 @@ class LinkSpec:
     reorder: float = 0.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
+        # a subclass (a deployment's [[link]]) adds routing fields: check the parameters only,
+        # and name the class the values were given to
+        owner = type(self).__name__
+        for name in LINK_PARAMETERS:
+            value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"LinkSpec.{f.name}: expected a number, got {value!r}")
+                raise ValueError(f"{owner}.{name}: expected a number, got {value!r}")
             if not math.isfinite(value) or value < 0:
-                raise ValueError(f"LinkSpec.{f.name}: expected a finite value >= 0, got {value}")
-            if f.name in ("loss", "duplicate", "reorder") and value > 1:
-                raise ValueError(
-                    f"LinkSpec.{f.name}: expected a probability in [0, 1], got {value}"
-                )
+                raise ValueError(f"{owner}.{name}: expected a finite value >= 0, got {value}")
+            if name in ("loss", "duplicate", "reorder") and value > 1:
+                raise ValueError(f"{owner}.{name}: expected a probability in [0, 1], got {value}")
 
-    @classmethod
-    def from_table(cls, table: Mapping[str, Any]) -> LinkSpec:
-        """Build from a deployment table; an unknown key raises ValueError naming it."""
-        known = {f.name for f in fields(cls)}
-        for key in table:
-            if key not in known:
-                raise ValueError(f"LinkSpec.{key}: unknown key; expected one of {sorted(known)}")
-        return cls(**table)
+    @property
+    def spec(self) -> LinkSpec:
+        """The impairment parameters alone, as a plain LinkSpec."""
+        return LinkSpec(*(getattr(self, name) for name in LINK_PARAMETERS))
 
 
 @dataclass(frozen=True)

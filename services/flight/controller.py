@@ -1,27 +1,10 @@
-"""Controller service, one per deputy: the flight software under test.
+"""Controller service, one per deputy: the flight software under test.  It flies the control
+law of ``services.flight.control.Controller`` (modes, learning, change detection) on the bus.
 
 Inputs:  nav/<deputy>/state (nav), exo/state (exo), clock.
 Outputs: cmd/<deputy>/att (cmd) every flight-software step; ctrl/<deputy>/gains (gains), beaconed
          every step while learning and published whenever the gains change; ctrl/<deputy>/status
          (status); stats/ctrl-<deputy>.
-
-Modes: ``lqr`` flies u = -K x + L v with gains from the nominal linear model.  ``ddvi`` flies
-u = -K0 x + eta(t) (K0 need not stabilise; eta a multi-sine inside the attitude limit), feeds
-every navigation sample to ddvi_core's IntervalCollector, runs data-driven value iteration at
-the configured time and switches to the learned K, L.  With ``learning.relearn`` it then
-watches its own data for a change of the plant (an actuator fault: ddvi_core.detection's
-one-step predictor, fitted on the data it learned from, and the one-orbit mean of its
-input-equivalent residual against the bound it states in its log); on a detection it explores
-again on K0 (phase "relearning"), learns again from the newest ``relearn_window_orbits`` of data
-after ``relearn_settle_orbits``, with the density ratio added to its exostate
-(``Controller.learner_exostate``), switches to the new gains and re-arms the detector; after
-``relearn_max_attempts`` failed attempts it flies the gains of before the detection again
-(source "fallback") and watches no more until it is restarted.  Every
-command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
-nav message), which makes the facet's drag linear in u and the same at every altitude.  The
-learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
-exosystem E and the orbit rate; never A, B or D.  Control input u = sigma3, the relative MRP
-about the orbit normal; sigma1 = sigma2 = 0.
 
 Timing: a flight-software step runs at each multiple of run.fsw_period of the clock, on the
 newest navigation sample it has; with a link delay d on its inputs (the deployment's [[link]])
@@ -36,385 +19,38 @@ is back) a step flies on the newest sample there is.  Restarted into a running m
 
 from __future__ import annotations
 
-import bisect
 import collections
 import math
 import queue
 import sys
 import time
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-import scipy.linalg
 
-from ddvi_core.constants import R_EARTH
-from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
-from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
-from ddvi_core.models import drag_allocation
-from ddvi_core.simulate import Exploration
-from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.bus import queue_handler, watch_alive
-from services.config import Deployment
-from services.flight.runtime import END_GRACE, ServiceContext, run_service
-from services.interface import Message
-from services.model import (
-    IN_PLANE,
-    lqr_gains,
-    mean_motion,
-    nominal_problem,
-    on_grid,
-    orbit_period,
+from services.flight.control import Controller
+from services.flight.runtime import ServiceContext, run_service
+from services.flight.streams import FinalClock, SamplePairs
+from services.interface import (
+    CLOCK,
+    EXOSTATE,
+    Message,
+    command_topic,
+    gains_topic,
+    nav_state_topic,
+    status_topic,
 )
-
-
-@dataclass
-class SampleOutcome:
-    """What one navigation sample did: a flight-software step (a new command in
-    ``Controller.u``), a learning attempt (its log line), a sample the collector refused."""
-
-    fsw: bool
-    learn_log: str | None = None
-    rejected: str | None = None
-
-
-class Controller:
-    """The control law and the learner's state; no I/O (the service loop does that)."""
-
-    def __init__(self, dep: Deployment, sc: str) -> None:
-        self.dep, self.sc = dep, sc
-        self.deputy = dep.deputy_named(sc)
-        self.problem = nominal_problem(dep, self.deputy)  # Q, R, C, E, F used by the learner
-        self.n_rate = mean_motion(dep)
-        self.fsw = dep.run.fsw_period
-        self.limit = self.deputy.attitude_limit
-        lrn = self.deputy.learning
-        self.mode = self.deputy.controller
-        if self.mode == "lqr":
-            self.K, self.L = lqr_gains(dep, self.deputy)
-            self.phase, self.source = "lqr", "lqr"
-        else:
-            self.K = np.array([lrn.K0], dtype=float)
-            self.L = np.zeros((1, self.problem.q))
-            self.phase, self.source = "exploring", "initial"
-            freqs = tuple(lrn.exploration_frequencies) or tuple(
-                np.geomspace(0.3 * self.n_rate, 30 * self.n_rate, 6)
-            )
-            self.exploration = Exploration(lrn.exploration_amplitude, freqs, lrn.seed)
-            self.collector = IntervalCollector(
-                4, 1, self.problem.q, lrn.interval, max_gap=3 * self.deputy.navigation.period
-            )
-            self.learn_at = lrn.learn_at_orbits * orbit_period(dep)
-            self.next_attempt = self.learn_at
-        # a command issued at T acts from the environment's first step at or after T + this
-        # (DESIGN.md section 3): the flight software knows its actuation link's latency
-        self.actuation_delay = dep.link_latency(f"ctrl-{sc}", "environment", f"cmd/{sc}/att")
-        self.normal_angle = math.radians(dep.spacecraft.normal_angle)
-        self.h_model = dep.chief.a - R_EARTH
-        self.scale_height = dep.atmosphere.scale_height
-        self.u = 0.0  # the attitude command in force, sigma3
-        self.u_applied = 0.0  # the linear-model input it realises (drag_allocation)
-        self.steps: list[tuple[float, float]] = []  # (T, u_applied) of every step so far
-        self.iteration = 0
-        self.converged = self.mode == "lqr"
-        self.learn_info: dict = {}
-        self.rank = self.rank_needed = 0
-        self.collect_from = 0.0  # samples before this are not the learner's (see rejoin)
-        self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
-        self.learn_attempts = 0
-        # change detection (learning.relearn): the samples the learner collects (t, x, u, v),
-        # for the predictor the detector fits when it learns; the detector once armed
-        self.learning_samples: collections.deque = collections.deque()
-        self.detector: ChangeDetector | None = None
-        self.detections = 0
-        self.relearn_since: float | None = None  # data for re-learning start here
-        # after a detected change the learner's exostate gains the density ratio (see
-        # learner_exostate; a fallback restores the old one): (C, E, F) of the exosystem the
-        # learner and L work with
-        self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
-        self.learned_at: list[float] = []  # every switch to learned gains (s)
-        # while re-learning: what was flown before the detection (K, L, exosystem, when
-        # learned, and the collector and rank that learned them), flown again if re-learning
-        # fails relearn_max_attempts times; and the count of failures
-        self.before_relearning: tuple | None = None
-        self.relearn_failures = 0
-        self.abandoned_at: list[float] = []  # every return to the old gains (s)
-
-    def rejoin(self, t: float) -> str:
-        """Restarted into a running mission, flying from step t on: nothing of the previous
-        process survives, so a learner starts over (exploring with K0, its data from when its
-        own commands act, learning ``learn_at_orbits`` from now).  Returns the log line."""
-        if self.mode == "lqr":
-            return f"restarted: flying the LQR gains from t = {t:.0f} s"
-        self.collect_from = math.ceil((t + self.actuation_delay) / self.fsw - 1e-9) * self.fsw
-        self.learn_at = self.next_attempt = t + self.deputy.learning.learn_at_orbits * orbit_period(
-            self.dep
-        )
-        return (
-            f"restarted: learning starts over (the data and gains of the previous process are "
-            f"lost); exploring from t = {t:.0f} s, data from t = {self.collect_from:.0f} s, "
-            f"learning at t = {self.learn_at:.0f} s"
-        )
-
-    @property
-    def density_mode(self) -> bool:
-        """The learner's exostate carries the density ratio (after a detected change, unless
-        re-learning fell back to gains learned without it)."""
-        return self.exosystem[1].shape[0] > self.problem.q
-
-    def learner_exostate(self, v: np.ndarray, altitude: float) -> np.ndarray:
-        """The exostate the learner collects and L multiplies: v itself, or after a detected
-        change [v; rho(h) / rho(h_0)].  Craft whose drag no longer matches (a panel fault)
-        feel a differential-drag bias proportional to the density at their altitude, which
-        oscillates about 50 % around the orbit and doubles in 20 orbits as the pair decays:
-        the exosystem's constant and harmonics cannot carry it (measured: re-learning
-        windows then never converge).  The bias acts where the input does, so it is
-        regulated with X = 0 and U constant whatever the ratio does; its row of E is zero."""
-        if not self.density_mode:
-            return v
-        return np.append(v, self.density_ratio(altitude))
-
-    def density_ratio(self, altitude: float) -> float:
-        """rho(h) / rho(h_0) of the nominal exponential atmosphere: how much more drag the
-        facet makes at altitude h (m) than the linear model's reference altitude h_0 (the
-        chief's initial orbit).  The pair decays about 1.4 km in 15 orbits, and the drag, hence
-        B, rises about 19% with it."""
-        return math.exp(-(altitude - self.h_model) / self.scale_height)
-
-    def command(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> float:
-        """The attitude command sigma3 for a flight-software step at t, from state x (4,) and
-        exostate v; ``u_applied`` is the linear-model input it realises (what the learner
-        records)."""
-        u = float((-self.K @ x + self.L @ self.learner_exostate(v, altitude))[0])
-        if self.exploring:
-            u += float(self.exploration(t, 1)[0])
-        # schedule on the measured altitude: the drag the linear model's u stands for is the
-        # same at every altitude, so the learner sees one B (and the LQR its design B)
-        ratio = self.density_ratio(altitude)
-        self.u, u_area = drag_allocation(u / ratio, self.normal_angle, self.limit)
-        self.u_applied = u_area * ratio
-        self.steps.append((t, self.u_applied))
-        return self.u
-
-    def on_sample(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> SampleOutcome:
-        """One navigation sample, in time order, when it arrives undelayed: on a
-        flight-software step, ``tick`` with it, then ``collect`` it.  The in-process baseline
-        runs exactly this; the service runs the same two steps, ordered by time."""
-        outcome = SampleOutcome(fsw=on_grid(t, self.fsw))
-        if outcome.fsw:
-            outcome.learn_log = self.tick(t, x, v, altitude)
-        outcome.rejected = self.collect(t, x, v, altitude)
-        return outcome
-
-    @property
-    def exploring(self) -> bool:
-        """Exploring and collecting for the learner: before the first learning or, after a
-        detected change, before re-learning (both on K0)."""
-        return self.phase in ("exploring", "relearning")
-
-    def tick(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:
-        """A flight-software step at t with the newest navigation sample (x (4,), exostate v,
-        altitude), measured at t or earlier: learn if it is time to, or start re-learning if
-        the detector has seen the plant change (returns the log line), then compute the
-        command in force from t on (``self.u``)."""
-        learn_log = None
-        if self.exploring and t >= self.next_attempt - 1e-6:
-            learn_log = self.learn(t)
-        elif self.phase == "learned" and self.detector is not None and self.detector.alarm:
-            learn_log = self.start_relearning(t)
-        self.command(t, x, v, altitude)
-        return learn_log
-
-    def start_relearning(self, t: float) -> str:
-        """The detector has seen the plant change at step t: explore again on K0, the
-        drift-nulling gain the first learning explored on, with the data from
-        ``relearn_settle_orbits`` later on only, and learn again ``relearn_window_orbits`` after
-        that.  Not on the learned gains: mid-approach they hold the command at one attitude
-        limit or the other, which clips the exploration away (measured: data from the approach
-        gave |K - K*|/|K*| = 2.3, and holding the slot with the learned gains swings the
-        lightly damped loop through the limits for orbits).  Returns the log line."""
-        det, lrn = self.detector, self.deputy.learning
-        self.detections += 1
-        learned = self.learned_at[-1] if self.learned_at else t
-        self.before_relearning = (
-            self.K,
-            self.L,
-            self.exosystem,
-            learned,
-            self.collector,
-            self.rank,
-            self.rank_needed,
-        )
-        self.relearn_failures = 0
-        self.phase, self.converged, self.detector = "relearning", False, None
-        self.source = "initial"  # flying K0 again until it re-learns
-        if not self.density_mode:
-            C, E, F = self.exosystem
-            F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
-            self.exosystem = (C, scipy.linalg.block_diag(E, 0.0), F_rho)
-        q = self.exosystem[1].shape[0]
-        self.K, self.L = np.array([lrn.K0], dtype=float), np.zeros((1, q))
-        self.collector = IntervalCollector(4, 1, q, lrn.interval, max_gap=self.collector.max_gap)
-        self.learning_samples.clear()
-        period = orbit_period(self.dep)
-        self.relearn_since = self.collect_from = t + lrn.relearn_settle_orbits * period
-        self.next_attempt = self.relearn_since + lrn.relearn_window_orbits * period
-        return (
-            f"fault detector: at t = {t:.0f} s the {lrn.detector_window_orbits:g}-orbit mean "
-            f"input-equivalent prediction residual {det.mean[0]:+.4g} left the bound "
-            f"+-{det.bound[0]:.4g} ({det.statistic:.2f} x the bound): the plant has changed; "
-            f"exploring again on K0, re-learning at t = {self.next_attempt:.0f} s from the data "
-            f"from t = {self.relearn_since:.0f} s on"
-        )
-
-    def input_at(self, t: float) -> float:
-        """The linear-model input this controller had in force at time t: that of its newest
-        step at or before t (a delayed sample is collected after later steps have run)."""
-        k = bisect.bisect_right(self.steps, t + 1e-6, key=lambda step: step[0])
-        return self.steps[k - 1][1] if k else 0.0
-
-    def input_acting(self, t: float) -> float:
-        """The linear-model input acting on the plant from t to the next sample: the
-        environment takes commands at each flight-software boundary T_k, the newest issued by
-        T_k - actuation delay (none yet: the zero command).  With no delay, ``input_at(t)``.
-        Exact for a fixed delay; with jitter the environment may apply a command a step sooner
-        than this assumes, and a command lost on its link leaves the previous one acting."""
-        t_k = math.floor(t / self.fsw + 1e-9) * self.fsw
-        issued = math.floor((t_k - self.actuation_delay) / self.fsw + 1e-9) * self.fsw
-        return self.input_at(issued) if issued > -1e-6 else 0.0
-
-    def collect(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:
-        """While exploring, feed the collector the sample with the input acting on the plant
-        from t on (``input_acting``); returns why the collector refused it, if it did.  Once
-        learned, feed the change detector (if armed) instead."""
-        if self.phase == "learned" and self.detector is not None:
-            self.detector.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
-            return None
-        if not self.exploring or t < self.collect_from - 1e-6:
-            return None
-        u, v = self.input_acting(t), self.learner_exostate(v, altitude)
-        try:
-            self.collector.add(t, x, [u], v)
-        except LearningError as exc:
-            return f"sample at t = {t} rejected: {exc}"
-        if self.deputy.learning.relearn:
-            self.learning_samples.append((t, np.array(x, dtype=float), u, np.array(v, dtype=float)))
-        return None
-
-    def learning_failed(self, t: float, why: str) -> str:
-        """A learning attempt at t did not give gains (``why``): explore on and try again
-        ``retry_orbits`` later; but once re-learning has failed ``relearn_max_attempts``
-        times, stop exploring and fly the gains of before the detection again, with the
-        detector off (it would only see the same change again).  Exploring on K0 for ever
-        is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
-        fault's bias (measured: 18.5 km off at orbit 50 with a panel stuck at 60 deg, against
-        673 m with the old gains back after 5 attempts).  Returns the log line."""
-        lrn = self.deputy.learning
-        if self.before_relearning is not None:
-            self.relearn_failures += 1
-            if self.relearn_failures >= lrn.relearn_max_attempts:
-                (self.K, self.L, self.exosystem, learned, self.collector, self.rank,
-                 self.rank_needed) = self.before_relearning  # fmt: skip
-                self.before_relearning = self.relearn_since = None
-                self.learning_samples.clear()
-                self.phase, self.source, self.converged = "learned", "fallback", True
-                self.abandoned_at.append(t)
-                return (
-                    f"{why}; re-learning abandoned after {self.relearn_failures} attempts: "
-                    f"flying the gains learned at t = {learned:.0f} s again, fault detector off"
-                )
-        self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
-        return f"{why}, exploring on"
-
-    def arm_detector(self, since: float) -> str:
-        """Fit the one-step predictor on the samples the learner just learned from (those at
-        or after ``since``) and watch it from now on; returns the bound it states."""
-        lrn = self.deputy.learning
-        samples = [s for s in self.learning_samples if s[0] >= since - 1e-6]
-        try:
-            predictor = fit_predictor(
-                [s[0] for s in samples],
-                np.reshape([s[1] for s in samples], (len(samples), 4)),
-                [s[2] for s in samples],
-                np.reshape([s[3] for s in samples], (len(samples), self.exosystem[1].shape[0])),
-                step=self.deputy.navigation.period,
-                translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
-            )
-            window = lrn.detector_window_orbits * orbit_period(self.dep)
-            self.detector = ChangeDetector(predictor, lrn.detector_bound, window)
-        except DetectionError as exc:
-            self.detector = None
-            return f"; fault detector NOT armed (no re-learning): {exc}"
-        finally:
-            self.learning_samples.clear()
-        return (
-            f"; fault detector: bound = +-{self.detector.bound[0]:.4g} on the "
-            f"{lrn.detector_window_orbits:g}-orbit mean input-equivalent one-step prediction "
-            f"residual ({lrn.detector_bound:g} x its RMS {predictor.input_rms[0]:.3g} on the "
-            f"{predictor.pairs} sample pairs learned from; one-step residual RMS "
-            f"{np.array2string(predictor.residual_rms, precision=3)})"
-        )
-
-    def learn(self, t: float) -> str:
-        """Run data-driven value iteration on the data so far; switch gains on success."""
-        lrn, pr = self.deputy.learning, self.problem
-        C, E, F = self.exosystem
-        n = self.n_rate
-        t0 = time.perf_counter()
-        self.learn_attempts += 1
-        since = -math.inf
-        if self.relearn_since is not None:  # re-learning: the newest window since settling
-            since = max(self.relearn_since, t - lrn.relearn_window_orbits * orbit_period(self.dep))
-        elif lrn.window_orbits > 0:
-            since = t - lrn.window_orbits * orbit_period(self.dep)
-        try:
-            data = self.collector.data().since(since)
-            r = learn_from_data(
-                data,
-                pr.Q,
-                pr.R,
-                time_unit=n,
-                C=C,
-                E=E,
-                F=F,
-                steps=StepSequence(lrn.step, lrn.step_size),
-                bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
-                tol=lrn.tol,
-                max_iterations=lrn.max_iterations,
-                state_scale=[1.0, 1.0, n, n],
-                translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
-            )
-        except LearningError as exc:
-            return self.learning_failed(t, f"learning at t = {t:.0f} s failed: {exc}")
-        self.rank, self.rank_needed = r.rank, r.rank_needed
-        if not r.converged:
-            return self.learning_failed(t, f"learning at t = {t:.0f} s did not converge "
-                                        f"({r.message})")  # fmt: skip
-        self.K, self.L = r.K, r.L
-        self.result = r
-        relearned = self.relearn_since is not None
-        self.phase, self.source = "learned", "ddvi"
-        self.iteration, self.converged = r.iterations, True
-        self.relearn_since = self.before_relearning = None
-        self.learned_at.append(t)
-        self.learn_info = {
-            "wall_s": time.perf_counter() - t0,
-            "condition": r.condition,
-            "residual": r.residual,
-            "intervals": r.intervals,
-        }
-        armed = self.arm_detector(since) if lrn.relearn else ""
-        return (
-            f"{'re-learned' if relearned else 'learned'} at t = {t:.0f} s from {r.intervals} "
-            f"intervals in {r.iterations} iterations ({self.learn_info['wall_s']:.2f} s): "
-            f"K = {r.K.ravel().tolist()}, L = {r.L.ravel().tolist()}{armed}"
-        )
-
+from services.model import IN_PLANE
 
 NAV_AWAY_GRACE = 1.0
 """Wall seconds after navigation's token goes before steps fly without its samples: a token's
 undeclaration can overtake the samples the service put just before it left."""
 _SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
 _PRESENCE = "presence"  # inbox tag: the navigation service came or went
+
+Sample = tuple[float, np.ndarray, np.ndarray, float]
+"""A navigation sample paired with its exostate: (t (s), x (4,), v (q,), altitude (m))."""
 
 
 def main(ctx: ServiceContext) -> int:
@@ -425,53 +61,75 @@ def main(ctx: ServiceContext) -> int:
     def seen(_topic: str, msg: Message) -> None:
         inbox.put((_SEEN, msg))
 
-    ctx.bus.subscribe(f"nav/{sc}/state", queue_handler(inbox), expected_schema="nav", observe=seen)
-    ctx.bus.subscribe("exo/state", queue_handler(inbox), expected_schema="exo", observe=seen)
-    ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
+    ctx.bus.subscribe(
+        nav_state_topic(sc), queue_handler(inbox), expected_schema="nav", observe=seen
+    )
+    ctx.bus.subscribe(EXOSTATE, queue_handler(inbox), expected_schema="exo", observe=seen)
+    ctx.bus.subscribe(CLOCK, queue_handler(inbox), expected_schema="clock")
     presence = watch_alive(
         ctx.bus.session, ctx.run, f"nav-{sc}", lambda _name, up: inbox.put((_PRESENCE, up))
     )
     try:
-        return _serve(ctx, ctrl, inbox)
+        ctx.ready()
+        return ControllerService(ctx, ctrl, inbox).run()
     finally:
         presence.undeclare()
 
 
-def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.SimpleQueue) -> int:
-    sc = ctrl.sc
-    run = ctx.deployment.run
-    fsw, nav_period = run.fsw_period, ctrl.deputy.navigation.period
-    ctx.ready()
-    # A sample measured at t reaches this controller at t + delay (its links' nominal delay):
-    # the flight-software step at T flies on the newest sample measured by T - delay.
-    delay = max(
-        ctx.bus.latency(f"nav-{sc}", f"nav/{sc}/state"), ctx.bus.latency("environment", "exo/state")
-    )
-    exo: dict[float, np.ndarray] = {}
-    navs: dict[float, tuple[np.ndarray, float]] = {}  # in-plane state, altitude
-    ready: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}  # paired, not yet collected
-    last: tuple[float, np.ndarray, np.ndarray, float] | None = None  # newest collected sample
-    # collected samples a step may still fly on (up to its delay behind it)
-    recent: collections.deque = collections.deque(maxlen=math.ceil(delay / nav_period) + 8)
-    counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0, "fault_detections": 0,
-                "relearning_abandoned": 0}  # fmt: skip
-    clock = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}  # time reached, seen up to
-    steps = 0
-    # a restarted controller flies from the first step it has a sample for (set below)
-    next_tick = math.inf if ctx.joining else 0.0
-    # while navigation is away (its token gone NAV_AWAY_GRACE ago, until the token is back),
-    # steps fly on the newest sample there is instead of waiting for one that will not come.
-    # Not until its next sample: a late or replayed one would end the absence for good.
-    nav_gone: float | None = None  # when its token went (monotonic s)
-    final_t: float | None = None
-    final_seen = 0.0
+class ControllerService:
+    """The controller's main loop: pairs each navigation sample with its exostate, runs the
+    flight-software steps and collects the samples in time order, and publishes the commands,
+    gains, status and counters.
 
-    def publish_gains(t: float) -> None:
-        ctx.bus.publish(
-            f"ctrl/{sc}/gains",
+    Parameters
+    ----------
+    ctx : the service's context (its bus, deployment, stop request).
+    ctrl : the control law this service flies.
+    inbox : where the subscriptions put ``(topic or tag, message)``.
+    """
+
+    def __init__(self, ctx: ServiceContext, ctrl: Controller, inbox: queue.SimpleQueue) -> None:
+        self.ctx, self.ctrl, self.inbox = ctx, ctrl, inbox
+        self.sc = sc = ctrl.sc
+        run = ctx.deployment.run
+        self.status_every = run.status_every
+        self.fsw, self.nav_period = run.fsw_period, ctrl.deputy.navigation.period
+        # A sample measured at t reaches this controller at t + delay (its links' nominal
+        # delay): the flight-software step at T flies on the newest sample measured by T - delay.
+        self.delay = max(
+            ctx.bus.latency(f"nav-{sc}", nav_state_topic(sc)),
+            ctx.bus.latency("environment", EXOSTATE),
+        )
+        self.pairs = SamplePairs(("nav", "exo"))  # nav: (x, altitude); exo: v
+        self.ready: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}  # not yet collected
+        self.last: Sample | None = None  # newest collected sample
+        # collected samples a step may still fly on (up to its delay behind it)
+        self.recent: collections.deque[Sample] = collections.deque(
+            maxlen=math.ceil(self.delay / self.nav_period) + 8
+        )
+        self.counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0,
+                         "fault_detections": 0, "relearning_abandoned": 0}  # fmt: skip
+        # the clock's time reached, and the nav and exo samples accounted for up to
+        self.reached = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}
+        self.steps = 0
+        # a restarted controller flies from the first step it has a sample for (on_sample)
+        self.next_tick = math.inf if ctx.joining else 0.0
+        # while navigation is away (its token gone NAV_AWAY_GRACE ago, until the token is
+        # back), steps fly on the newest sample there is instead of waiting for one that will
+        # not come.  Not until its next sample: a late or replayed one would end the absence
+        # for good.
+        self.nav_gone: float | None = None  # when its token went (monotonic s)
+        self.final = FinalClock()
+
+    # -- publishing ---------------------------------------------------------------------------
+
+    def publish_gains(self, t: float) -> None:
+        ctrl = self.ctrl
+        self.ctx.bus.publish(
+            gains_topic(self.sc),
             "gains",
             {
-                "sc": sc,
+                "sc": self.sc,
                 "K": ctrl.K,
                 "L": ctrl.L,
                 "source": ctrl.source,
@@ -481,49 +139,125 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.SimpleQueue) -> i
             t,
         )
 
-    def publish_status(t: float) -> None:
+    def publish_status(self, t: float) -> None:
+        ctrl = self.ctrl
         c = ctrl.collector if ctrl.mode == "ddvi" else None
-        ctx.bus.publish(
-            f"ctrl/{sc}/status",
+        self.ctx.bus.publish(
+            status_topic(self.sc),
             "status",
             {
-                "sc": sc,
+                "sc": self.sc,
                 "mode": ctrl.mode,
                 "phase": ctrl.phase,
                 "samples": c.samples if c else 0,
                 "intervals": c.intervals if c else 0,
                 "rank": ctrl.rank,
                 "rank_needed": ctrl.rank_needed,
-                "counters": counters,
+                "counters": self.counters,
             },
             t,
         )
 
-    def expected_sample(T: float) -> float:
+    # -- the main loop ------------------------------------------------------------------------
+
+    def run(self) -> int:
+        """Take messages until the mission is over or a stop is requested; returns 0."""
+        if not self.ctx.joining:
+            self.publish_gains(0.0)
+        while not self.ctx.stop.is_set():
+            try:
+                kind, msg = self.inbox.get(timeout=0.5 if self.nav_gone is None else 0.1)
+            except queue.Empty:
+                if self.final.grace_over():
+                    break  # the last samples were lost on their links
+                self.advance()  # a step may wait for navigation's grace to run out
+                if self.done():
+                    break
+                continue
+            self.take(kind, msg)
+            if self.inbox.empty():  # what pump() just released is queued: take it in first
+                self.advance()
+            if self.done():
+                break
+        t_end = self.next_tick - self.fsw
+        self.publish_gains(t_end)
+        self.publish_status(t_end)
+        self.ctx.publish_stats(t_end, self.counters)
+        return 0
+
+    def take(self, kind: str, msg: Any) -> None:
+        """One inbox entry: navigation's presence (``msg``: up or not), or a message: a sample
+        accounted for by its link, a clock, a sample."""
+        if kind == _PRESENCE:
+            if msg:  # back: a restarted navigation is alive once it publishes
+                self.nav_gone = None
+            elif self.nav_gone is None:  # gone: from the first notice
+                self.nav_gone = time.monotonic()
+        elif kind == _SEEN:
+            key = "nav" if msg.schema == "nav" else "exo"
+            self.reached[key] = max(self.reached[key], msg.t)
+        elif msg.schema == "clock":
+            self.reached["now"] = max(self.reached["now"], msg.t)
+            self.ctx.bus.pump(msg.t)  # release what the links held until now
+            self.final.on_clock(msg)
+        else:
+            self.on_sample(msg)
+
+    def on_sample(self, msg: Message) -> None:
+        """A nav or exo message: pair it by time; a complete sample newer than the last one
+        collected is ready for ``advance``."""
+        if msg.schema == "exo":
+            pair = self.pairs.add(msg.t, "exo", msg.body["v"])
+        else:
+            x = msg.body["x_hill"][list(IN_PLANE)]
+            pair = self.pairs.add(msg.t, "nav", (x, msg.body["altitude"]))
+        last_t = None if self.last is None else self.last[0]
+        if pair is not None:
+            (x, altitude), v = pair["nav"], pair["exo"]
+            if last_t is not None and msg.t <= last_t:
+                self.counters["samples_rejected"] += 1  # stale or replayed
+            else:
+                self.ready[msg.t] = (x, v, altitude)
+        if last_t is not None:
+            # exostates and samples that nothing will pair any more (their partner was lost
+            # on a link, or they repeat collected ones); a lone sample is counted as rejected
+            stale = self.pairs.forget_before(last_t)
+            self.counters["samples_rejected"] += sum("nav" in s for s in stale)
+        if self.next_tick == math.inf and self.ready:  # restarted: the first step it can fly
+            self.next_tick = math.ceil((min(self.ready) + self.delay) / self.fsw - 1e-9) * self.fsw
+            self.ctx.log("warning", self.ctrl.rejoin(self.next_tick), self.next_tick)
+            self.publish_gains(self.next_tick)
+
+    # -- steps and samples, in time order -----------------------------------------------------
+
+    def expected_sample(self, T: float) -> float:
         """The newest sample the step at T can have (negative: none yet)."""
-        return math.floor((T - delay) / nav_period + 1e-9) * nav_period
+        return math.floor((T - self.delay) / self.nav_period + 1e-9) * self.nav_period
 
-    def nav_away() -> bool:
-        return nav_gone is not None and time.monotonic() - nav_gone >= NAV_AWAY_GRACE
+    def nav_away(self) -> bool:
+        return self.nav_gone is not None and time.monotonic() - self.nav_gone >= NAV_AWAY_GRACE
 
-    def tick_ready(T: float) -> bool:
+    def tick_ready(self, T: float) -> bool:
         """The clock has reached T and the sample the step flies on is accounted for
         (delivered, or held or lost by its link)."""
         if math.isinf(T):  # restarted, no sample yet: no step to fly
             return False
-        want = expected_sample(T)
-        return clock["now"] >= T - 1e-6 and (
+        want, reached = self.expected_sample(T), self.reached
+        return reached["now"] >= T - 1e-6 and (
             want < -1e-6
-            or ((clock["nav"] >= want - 1e-6 or nav_away()) and clock["exo"] >= want - 1e-6)
+            or (
+                (reached["nav"] >= want - 1e-6 or self.nav_away()) and reached["exo"] >= want - 1e-6
+            )
         )
 
-    def tick(T: float) -> None:
-        nonlocal steps
+    def tick(self, T: float) -> None:
+        """The flight-software step at T: the command, and any learning it brings."""
+        ctrl, counters = self.ctrl, self.counters
         # the newest sample measured by T - delay: a sample a later clock's pump released
         # early (the environment runs ahead of a delayed loop) must not shorten the delay
-        limit = expected_sample(T) + 1e-6
-        candidates = [(t, *ready[t]) for t in ready if t <= limit]
-        candidates += [s for s in recent if s[0] <= limit]
+        limit = self.expected_sample(T) + 1e-6
+        candidates = [(t, *self.ready[t]) for t in self.ready if t <= limit]
+        candidates += [s for s in self.recent if s[0] <= limit]
         newest = max(candidates, key=lambda s: s[0]) if candidates else None
         if newest is None:  # nothing measured yet (a delayed start): hold the zero command
             learn_log = None
@@ -534,109 +268,56 @@ def _serve(ctx: ServiceContext, ctrl: Controller, inbox: queue.SimpleQueue) -> i
             counters["learn_attempts"] = ctrl.learn_attempts
             counters["fault_detections"] = ctrl.detections
             counters["relearning_abandoned"] = len(ctrl.abandoned_at)
-            ctx.log("info", learn_log, T)
-            publish_gains(T)
-        ctx.bus.publish(
-            f"cmd/{sc}/att", "cmd", {"sc": sc, "sigma": [0.0, 0.0, ctrl.u], "for_t": T}, T
+            self.ctx.log("info", learn_log, T)
+            self.publish_gains(T)
+        self.ctx.bus.publish(
+            command_topic(self.sc),
+            "cmd",
+            {"sc": self.sc, "sigma": [0.0, 0.0, ctrl.u], "for_t": T},
+            T,
         )
         counters["commands"] += 1
-        steps += 1
+        self.steps += 1
         if ctrl.exploring:
-            publish_gains(T)  # beaconed during learning
-        if steps % run.status_every == 0:
-            publish_status(T)
-            ctx.publish_stats(T, counters)
+            self.publish_gains(T)  # beaconed during learning
+        if self.steps % self.status_every == 0:
+            self.publish_status(T)
+            self.ctx.publish_stats(T, counters)
 
-    def collect(t: float) -> None:
-        nonlocal last
-        x, v, altitude = ready.pop(t)
-        rejected = ctrl.collect(t, x, v, altitude)
+    def collect(self, t: float) -> None:
+        x, v, altitude = self.ready.pop(t)
+        rejected = self.ctrl.collect(t, x, v, altitude)
         if rejected is not None:
-            counters["samples_rejected"] += 1
-            ctx.log("warning", rejected, t)
-        last = (t, x, v, altitude)
-        recent.append(last)
+            self.counters["samples_rejected"] += 1
+            self.ctx.log("warning", rejected, t)
+        self.last = (t, x, v, altitude)
+        self.recent.append(self.last)
 
-    def advance() -> None:
+    def advance(self) -> None:
         """Collect samples and run flight-software steps in time order (a step before the
         sample measured at its own time), each as soon as it can be."""
-        nonlocal next_tick
+        final_t = self.final.t
         while True:
-            first = min(ready, default=math.inf)
-            if first < next_tick - 1e-6:
-                collect(first)
-            elif final_t is not None and next_tick > final_t + 1e-6:
+            first = min(self.ready, default=math.inf)
+            if first < self.next_tick - 1e-6:
+                self.collect(first)
+            elif final_t is not None and self.next_tick > final_t + 1e-6:
                 if first <= final_t + 1e-6:
-                    collect(first)
+                    self.collect(first)
                 else:
                     return
-            elif tick_ready(next_tick):
-                tick(next_tick)
-                next_tick += fsw
+            elif self.tick_ready(self.next_tick):
+                self.tick(self.next_tick)
+                self.next_tick += self.fsw
             else:
                 return
 
-    def done() -> bool:
-        if final_t is None or next_tick <= final_t + 1e-6:
+    def done(self) -> bool:
+        """Every step up to the final clock has run, on the last sample it can have."""
+        final_t = self.final.t
+        if final_t is None or self.next_tick <= final_t + 1e-6:
             return False
-        return last is not None and last[0] >= expected_sample(final_t) - 1e-6
-
-    if not ctx.joining:
-        publish_gains(0.0)
-    while not ctx.stop.is_set():
-        try:
-            kind, msg = inbox.get(timeout=0.5 if nav_gone is None else 0.1)
-        except queue.Empty:
-            if final_t is not None and time.monotonic() - final_seen > END_GRACE:
-                break  # the last samples were lost on their links
-            advance()  # a step may wait for navigation's grace to run out
-            if done():
-                break
-            continue
-        if kind == _PRESENCE:
-            if msg:  # back: a restarted navigation is alive once it publishes
-                nav_gone = None
-            elif nav_gone is None:  # gone: from the first notice
-                nav_gone = time.monotonic()
-        elif kind == _SEEN:
-            key = "nav" if msg.schema == "nav" else "exo"
-            clock[key] = max(clock[key], msg.t)
-        elif msg.schema == "clock":
-            clock["now"] = max(clock["now"], msg.t)
-            ctx.bus.pump(msg.t)  # release what the links held until now
-            if msg.body["final"]:
-                final_t, final_seen = msg.t, time.monotonic()
-        else:
-            if msg.schema == "exo":
-                exo[msg.t] = msg.body["v"]
-            else:
-                navs[msg.t] = (msg.body["x_hill"][list(IN_PLANE)], msg.body["altitude"])
-            for t in [t for t in navs if t in exo]:
-                (x, altitude), v = navs.pop(t), exo.pop(t)
-                if last is not None and t <= last[0]:
-                    counters["samples_rejected"] += 1  # stale or replayed
-                else:
-                    ready[t] = (x, v, altitude)
-            # forget exostates and samples that nothing will pair any more (their partner was
-            # lost on a link, or they are duplicates of collected ones)
-            for t in [t for t in exo if last is not None and t < last[0]]:
-                del exo[t]
-            for t in [t for t in navs if last is not None and t < last[0]]:
-                del navs[t]
-                counters["samples_rejected"] += 1
-            if next_tick == math.inf and ready:  # restarted: the first step it can fly
-                next_tick = math.ceil((min(ready) + delay) / fsw - 1e-9) * fsw
-                ctx.log("warning", ctrl.rejoin(next_tick), next_tick)
-                publish_gains(next_tick)
-        if inbox.empty():  # what pump() just released is queued: take it in first
-            advance()
-        if done():
-            break
-    t_end = next_tick - fsw
-    publish_gains(t_end)
-    publish_status(t_end)
-    ctx.publish_stats(t_end, counters)
-    return 0
+        return self.last is not None and self.last[0] >= self.expected_sample(final_t) - 1e-6
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ import numpy as np
 
 from ddvi_core.constants import R_EARTH
 from services.config import Deployment
-from services.flight.controller import Controller
+from services.flight.control import Controller
 from services.model import (
     IN_PLANE,
     duration,

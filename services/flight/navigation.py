@@ -15,117 +15,147 @@ from __future__ import annotations
 import math
 import queue
 import sys
-import time
 
 import numpy as np
 
 from ddvi_core.constants import R_EARTH
 from services.bus import queue_handler
-from services.flight.runtime import END_GRACE, ServiceContext, run_service
-from services.interface import Message
+from services.flight.runtime import ServiceContext, run_service
+from services.flight.streams import FaultQueue, FinalClock, SamplePairs
+from services.interface import CLOCK, Message, fault_topic, nav_state_topic, truth_topic
 from services.model import navigation_state, on_grid, orbit_period
+
+BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
+"""The params of a bias fault: position (m) and velocity (m/s) bias, in navigation's frame."""
 
 
 def main(ctx: ServiceContext) -> int:
-    sc = ctx.name.removeprefix("nav-")
-    deputy = ctx.deployment.deputy_named(sc)
-    cfg = deputy.navigation
-    rng = np.random.default_rng([ctx.deployment.run.seed, cfg.seed, sum(map(ord, sc))])
-    sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
-    bias = np.array(cfg.position_bias + cfg.velocity_bias)
-    inbox: queue.SimpleQueue = queue.SimpleQueue()
-    # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
-    # two subscriptions interleave arbitrarily, and samples are paired by time below
-    for craft in ("chief", sc):
-        ctx.bus.subscribe(f"truth/{craft}", queue_handler(inbox), expected_schema="truth")
-    ctx.bus.subscribe("clock", queue_handler(inbox), expected_schema="clock")
-    ctx.bus.subscribe("fault/bias", queue_handler(inbox), expected_schema="fault")
-    # bias faults: the deployment's at their times, the ground's from the next sample on
-    orbit = orbit_period(ctx.deployment)
-    bias_faults = [
-        (f.at_orbits * orbit, np.array(f.position_bias + f.velocity_bias), "scheduled")
-        for f in ctx.deployment.fault
-        if f.kind == "bias" and f.deputy == sc
-    ]
-    if ctx.joining:
-        ctx.log("warning", "restarted into the running mission: publishing from the next truth")
-    else:
-        ctx.ready()
-    pending: dict[float, dict[str, np.ndarray]] = {}
-    counters = {"published": 0, "unmatched": 0, "bias_faults": 0, "bad_faults": 0}
-    final_t: float | None = None
-    final_seen = 0.0  # wall time the final clock arrived
-    last_t = -1.0  # last published sample
-    last_pair = -1.0  # last sample for which both truths arrived
+    return NavigationService(ctx).run()
 
-    def handle(msg: Message) -> None:
-        nonlocal final_t, final_seen, last_t, last_pair, bias
+
+class NavigationService:
+    """Pairs the chief's and the deputy's truth by time and publishes, on the navigation grid,
+    the deputy's relative state with the bias in force and white noise.
+
+    Parameters
+    ----------
+    ctx : the service's context; its name is ``nav-<deputy>``.
+    """
+
+    def __init__(self, ctx: ServiceContext) -> None:
+        self.ctx = ctx
+        self.sc = sc = ctx.name.removeprefix("nav-")
+        self.deputy = ctx.deployment.deputy_named(sc)
+        cfg = self.deputy.navigation
+        self.period = cfg.period
+        self.rng = np.random.default_rng([ctx.deployment.run.seed, cfg.seed, sum(map(ord, sc))])
+        self.sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
+        self.bias = np.array(cfg.position_bias + cfg.velocity_bias)
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
+        # two subscriptions interleave arbitrarily, and samples are paired by time
+        for craft in ("chief", sc):
+            ctx.bus.subscribe(
+                truth_topic(craft), queue_handler(self.inbox), expected_schema="truth"
+            )
+        ctx.bus.subscribe(CLOCK, queue_handler(self.inbox), expected_schema="clock")
+        ctx.bus.subscribe(fault_topic("bias"), queue_handler(self.inbox), expected_schema="fault")
+        # bias faults: the deployment's at their times, the ground's from the next sample on
+        orbit = orbit_period(ctx.deployment)
+        self.bias_faults: FaultQueue[np.ndarray] = FaultQueue(
+            [
+                (f.at_orbits * orbit, np.array(f.position_bias + f.velocity_bias))
+                for f in ctx.deployment.fault
+                if f.kind == "bias" and f.deputy == sc
+            ]
+        )
+        if ctx.joining:
+            ctx.log("warning", "restarted into the running mission: publishing from the next truth")
+        else:
+            ctx.ready()
+        self.pairs = SamplePairs(("chief", sc))
+        self.counters = {"published": 0, "unmatched": 0, "bias_faults": 0, "bad_faults": 0}
+        self.final = FinalClock()
+        self.last_t = -1.0  # last published sample
+        self.last_pair = -1.0  # last sample for which both truths arrived
+
+    def run(self) -> int:
+        """Take messages until the final sample is paired or a stop is requested; returns 0."""
+        while not self.ctx.stop.is_set():
+            try:
+                _, msg = self.inbox.get(timeout=0.5)
+            except queue.Empty:
+                if self.final.grace_over():
+                    break  # the last truth never came (a lost message): nothing more will
+                continue
+            # what one pass over the queue publishes goes out as one zenoh sample per topic:
+            # the environment's step arrives at once, so a step's samples leave together
+            with self.ctx.bus.batch():
+                while True:
+                    self.handle(msg)
+                    try:
+                        _, msg = self.inbox.get_nowait()
+                    except queue.Empty:
+                        break
+            if self.final.t is not None and self.last_pair >= self.final.t - 1e-6:
+                break
+        self.ctx.publish_stats(self.last_t, self.counters)
+        return 0
+
+    def handle(self, msg: Message) -> None:
         if msg.schema == "clock":
-            if msg.body["final"]:
-                final_t, final_seen = msg.t, time.monotonic()
+            self.final.on_clock(msg)
         elif msg.schema == "fault":
-            if msg.body["target"] != sc:
-                return  # another deputy's navigation
-            p = msg.body["params"]
-            keys = ("px", "py", "pz", "vx", "vy", "vz")
-            values = [p.get(k, 0.0) for k in keys]
-            if not all(isinstance(v, float | int) and math.isfinite(v) for v in values):
-                counters["bad_faults"] += 1
-                ctx.log("warning", f"fault bias {sc}: refused (params {keys} must be finite "
-                        f"numbers; got {p})", msg.t)  # fmt: skip
-                return
-            bias_faults.append((-math.inf, np.array(values, dtype=float), f"from {msg.src}"))
-        elif msg.body["sc"] in ("chief", sc):
-            slot = pending.setdefault(msg.t, {})
-            slot[msg.body["sc"]] = np.concatenate([msg.body["r_N"], msg.body["v_N"]])
-            if "chief" in slot and sc in slot:
-                del pending[msg.t]
-                last_pair = max(last_pair, msg.t)
-                if on_grid(msg.t, cfg.period) and msg.t > last_t:
-                    for fault in [f for f in bias_faults if f[0] <= msg.t + 1e-6]:
-                        bias_faults.remove(fault)
-                        bias = fault[1]
-                        counters["bias_faults"] += 1
-                        ctx.log("warning", f"fault bias {sc}: navigation bias now "
-                                f"{bias.tolist()} from t = {msg.t:.0f} s ({fault[2]})",
-                                msg.t)  # fmt: skip
-                    x = navigation_state(ctx.deployment, deputy, slot["chief"], slot[sc]) + bias
-                    if sigma.any():
-                        x = x + rng.normal(0.0, 1.0, 6) * sigma
-                    altitude = float(np.linalg.norm(slot[sc][:3])) - R_EARTH
-                    body = {"sc": sc, "x_hill": x, "altitude": altitude, "valid": True}
-                    ctx.bus.publish(f"nav/{sc}/state", "nav", body, msg.t)
-                    counters["published"] += 1
-                    last_t = msg.t
-                    ctx.ready()  # a restarted service is alive once it publishes again
-            # a half pair well behind the newest sample will never complete (a lost message);
-            # the two subscriptions can drift apart by the steps the environment runs ahead
-            # of a delayed control loop, so "well behind" is ten flight-software steps
-            horizon = msg.t - 10 * ctx.deployment.run.fsw_period
-            for t in [t for t in pending if t < horizon]:
-                del pending[t]
-                counters["unmatched"] += 1
+            self.on_fault(msg)
+        elif msg.body["sc"] in ("chief", self.sc):
+            self.on_truth(msg)
 
-    while not ctx.stop.is_set():
-        try:
-            _, msg = inbox.get(timeout=0.5)
-        except queue.Empty:
-            if final_t is not None and time.monotonic() - final_seen > END_GRACE:
-                break  # the last truth never came (a lost message): nothing more will
-            continue
-        # what one pass over the queue publishes goes out as one zenoh sample per topic:
-        # the environment's step arrives at once, so a step's samples leave together
-        with ctx.bus.batch():
-            while True:
-                handle(msg)
-                try:
-                    _, msg = inbox.get_nowait()
-                except queue.Empty:
-                    break
-        if final_t is not None and last_pair >= final_t - 1e-6:
-            break
-    ctx.publish_stats(last_t, counters)
-    return 0
+    def on_fault(self, msg: Message) -> None:
+        """``fault/bias`` from the ground: queue the new bias if it is this deputy's."""
+        if msg.body["target"] != self.sc:
+            return  # another deputy's navigation
+        p = msg.body["params"]
+        values = [p.get(k, 0.0) for k in BIAS_KEYS]
+        if not all(isinstance(v, float | int) and math.isfinite(v) for v in values):
+            self.counters["bad_faults"] += 1
+            self.ctx.log("warning", f"fault bias {self.sc}: refused (params {BIAS_KEYS} must be "
+                         f"finite numbers; got {p})", msg.t)  # fmt: skip
+            return
+        self.bias_faults.from_ground(np.array(values, dtype=float), msg.src)
+
+    def on_truth(self, msg: Message) -> None:
+        """One craft's truth: once both craft of its time are in, publish the sample if it is
+        on the navigation grid and newer than the last one."""
+        t = msg.t
+        pair = self.pairs.add(t, msg.body["sc"], np.concatenate([msg.body["r_N"], msg.body["v_N"]]))
+        if pair is not None:
+            self.last_pair = max(self.last_pair, t)
+            if on_grid(t, self.period) and t > self.last_t:
+                self.publish(t, pair["chief"], pair[self.sc])
+        # a half pair well behind the newest sample will never complete (a lost message);
+        # the two subscriptions can drift apart by the steps the environment runs ahead
+        # of a delayed control loop, so "well behind" is ten flight-software steps
+        horizon = t - 10 * self.ctx.deployment.run.fsw_period
+        self.counters["unmatched"] += len(self.pairs.forget_before(horizon))
+
+    def publish(self, t: float, chief: np.ndarray, deputy: np.ndarray) -> None:
+        """The navigation sample at t from the chief's and the deputy's inertial states (6,),
+        with the bias in force from t on and white noise."""
+        sc = self.sc
+        for fault in self.bias_faults.pop_due(t):
+            self.bias = fault.value
+            self.counters["bias_faults"] += 1
+            self.ctx.log("warning", f"fault bias {sc}: navigation bias now {self.bias.tolist()} "
+                         f"from t = {t:.0f} s ({fault.origin})", t)  # fmt: skip
+        x = navigation_state(self.ctx.deployment, self.deputy, chief, deputy) + self.bias
+        if self.sigma.any():
+            x = x + self.rng.normal(0.0, 1.0, 6) * self.sigma
+        altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
+        body = {"sc": sc, "x_hill": x, "altitude": altitude, "valid": True}
+        self.ctx.bus.publish(nav_state_topic(sc), "nav", body, t)
+        self.counters["published"] += 1
+        self.last_t = t
+        self.ctx.ready()  # a restarted service is alive once it publishes again
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """What every service process shares: its command line, its session, its bus, its shutdown.
 
-A service is started by the launcher as ``python -m services.<module> --deployment FILE
+A service is started by the launcher as ``python -m <module> --deployment FILE
 --run RUN --hub ENDPOINT [--name NAME] [--out DIR] [--join]``; ``--join`` marks a restart into a
 running mission (``ServiceContext.joining``): the service declares itself alive only once it can
 do its job, so that nobody waits on it before.  ``run_service`` opens the zenoh session
@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 2 cores: BLAS threads would fight services
+# BLAS threads would compete with the services for the cores
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import logging
@@ -37,15 +38,12 @@ from services.bus import (
     wait_for_alive,
 )
 from services.config import Deployment, DeploymentError, load_deployment
-from services.interface import Message
+from services.interface import Message, fault_topic, log_topic, stats_topic
 
 # zenoh reads it when a session opens: every service's, not the launcher's (SERVICE_ZENOH_RUNTIME)
 os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)
 
 log = logging.getLogger("ddvi")
-
-END_GRACE = 2.0
-"""Wall seconds a service waits, after the final clock, for a message its link may have lost."""
 
 MONITOR_WAIT = 10.0
 """Wall seconds a service waits at start-up to see the monitor, so that what it publishes first
@@ -73,7 +71,7 @@ class ServiceContext:
         counters = dict(self.bus.counters)
         counters.update(extra or {})
         self.bus.publish(
-            f"stats/{self.name}", "stats", {"service": self.name, "counters": counters}, t
+            stats_topic(self.name), "stats", {"service": self.name, "counters": counters}, t
         )
 
     def on_link_fault(self, _topic: str, msg: Message) -> None:
@@ -102,7 +100,7 @@ class ServiceContext:
         getattr(log, level if level in ("info", "warning", "error") else "info")(text)
         try:
             self.bus.publish(
-                f"log/{self.name}",
+                log_topic(self.name),
                 "log",
                 {"service": self.name, "level": level, "text": text[:2000]},
                 t,
@@ -171,7 +169,7 @@ def run_service(
             if args.name != "monitor" and not _see_monitor(session, args.run, stop):
                 log.warning("the monitor is not seen after %g s: what this service publishes "
                             "before it is may not be recorded", MONITOR_WAIT)  # fmt: skip
-            bus.subscribe("fault/link", ctx.on_link_fault, expected_schema="fault")
+            bus.subscribe(fault_topic("link"), ctx.on_link_fault, expected_schema="fault")
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready
             return status

@@ -2,7 +2,7 @@
 
 A fault is a message on ``ddvi/<run>/fault/<kind>`` (schema ``fault``: kind, target, params)
 that the service responsible acts on, stamped with the run's simulation time (read from its
-clock, which also proves the run is there).  Kinds built so far:
+clock, which also proves the run is there).  The kinds:
 
     kill SERVICE                    the launcher kills the service with SIGKILL, as a crash
                                     would; its [[restart]] policy decides what follows
@@ -30,6 +30,7 @@ import os
 import queue
 import sys
 import time
+from typing import Any
 
 import zenoh
 
@@ -45,7 +46,7 @@ from services.bus import (
     wait_for_alive,
 )
 from services.config import check_panel
-from services.interface import decode
+from services.interface import decode, topics
 
 KINDS = ("kill", "panel", "bias", "link")
 
@@ -78,7 +79,8 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 def _clock(session: zenoh.Session, run: str, timeout: float) -> float | None:
     """The run's simulation time, from its next clock message (None: none within timeout)."""
     inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    sub = session.declare_subscriber(f"ddvi/{run}/clock", lambda s: inbox.put(s.payload.to_bytes()))
+    key = f"ddvi/{run}/{topics.CLOCK}"
+    sub = session.declare_subscriber(key, lambda s: inbox.put(s.payload.to_bytes()))
     try:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -93,44 +95,83 @@ def _clock(session: zenoh.Session, run: str, timeout: float) -> float | None:
         sub.undeclare()
 
 
-def fault_command(args: argparse.Namespace) -> int:
-    """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
+class UsageError(Exception):
+    """A fault the command line does not describe fully; the message says what is missing."""
+
+
+def _target(args: argparse.Namespace) -> tuple[str, str]:
+    """The run and the fault's target, checked (a link's target: its subscriber glob)."""
     if args.kind == "link":
         if not args.publisher or not args.subscriber:
-            print("ddvi fault link: give --from PUBLISHER and --to SUBSCRIBER", file=sys.stderr)
-            return 2
+            raise UsageError("ddvi fault link: give --from PUBLISHER and --to SUBSCRIBER")
         args.target = args.subscriber.replace("/", "-")
     elif not args.target:
-        print(f"ddvi fault {args.kind}: name the target", file=sys.stderr)
-        return 2
+        raise UsageError(f"ddvi fault {args.kind}: name the target")
     try:
         run = check_name("run", args.run)
         target = args.target if args.kind == "link" else check_name("target", args.target)
     except ValueError as exc:
-        print(f"ddvi fault: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"ddvi fault: {exc}") from exc
+    return run, target
+
+
+def _params(args: argparse.Namespace, target: str) -> tuple[dict[str, Any], str | None]:
+    """The fault's params, and the service that acts on it (None: every service a link glob
+    matches answers)."""
     if args.kind == "panel":
         try:
             check_panel(args.area_factor, args.stuck_angle)
         except ValueError as exc:
-            print(f"ddvi fault panel: give --area-factor F > 0 and/or --stuck-angle DEG in "
-                  f"(0, 90) ({exc})", file=sys.stderr)  # fmt: skip
-            return 2
+            raise UsageError(f"ddvi fault panel: give --area-factor F > 0 and/or --stuck-angle DEG "
+                        f"in (0, 90) ({exc})") from exc  # fmt: skip
         params = {"area_factor": args.area_factor, "normal_angle": args.stuck_angle}
-        params, acting = {k: v for k, v in params.items() if v is not None}, "environment"
-    elif args.kind == "bias":
+        return {k: v for k, v in params.items() if v is not None}, "environment"
+    if args.kind == "bias":
         if args.position is None:
-            print("ddvi fault bias: give --position X Y Z (m)", file=sys.stderr)
-            return 2
+            raise UsageError("ddvi fault bias: give --position X Y Z (m)")
         values = [*args.position, *args.velocity]
-        params = dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True))
-        acting = f"nav-{target}"
-    elif args.kind == "link":
+        return dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True)), f"nav-{target}"
+    if args.kind == "link":
         params = {"from": args.publisher.replace("/", "-"), "topic": args.topic}
         params.update({k: getattr(args, k) for k in LINK_PARAMETERS})
-        acting = None  # every service the glob matches answers
-    else:
-        params, acting = {}, target
+        return params, None
+    return {}, target
+
+
+def _publish_and_wait(
+    session: zenoh.Session, args: argparse.Namespace, run: str, target: str,
+    params: dict[str, Any], t: float,
+) -> int | None:  # fmt: skip
+    """Publish the fault at simulation time ``t`` and print the acting service's answer;
+    its exit status, or None when no answer came within ``args.timeout``."""
+    answers: queue.SimpleQueue = queue.SimpleQueue()
+    with Bus(session, run, f"ground-{os.getpid()}") as bus:
+        bus.subscribe(topics.log_topic("*"), queue_handler(answers), expected_schema="log")
+        time.sleep(0.2)  # let the subscription reach the service before it answers
+        body = {"kind": args.kind, "target": target, "params": params}
+        bus.publish(topics.fault_topic(args.kind), "fault", body, t)
+        print(f"ddvi fault: {args.kind} {target} sent at t = {t:.0f} s")
+        deadline = time.monotonic() + args.timeout
+        while time.monotonic() < deadline:
+            try:
+                _, msg = answers.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            text = msg.body["text"]
+            if text.startswith(f"fault {args.kind} {target}:"):
+                print(f"{msg.body['service']}: {text}")
+                return 1 if ": ignored" in text or ": refused" in text else 0
+    return None
+
+
+def fault_command(args: argparse.Namespace) -> int:
+    """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
+    try:
+        run, target = _target(args)
+        params, acting = _params(args, target)
+    except UsageError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
     with open_session(settings) as session:
         t = _clock(session, run, args.timeout)
@@ -144,23 +185,9 @@ def fault_command(args: argparse.Namespace) -> int:
         if acting is not None and not wait_for_alive(session, run, [acting], 2.0):
             print(f"ddvi fault: service {acting!r} is not alive in run {run!r}", file=sys.stderr)
             return 1
-        answers: queue.SimpleQueue = queue.SimpleQueue()
-        with Bus(session, run, f"ground-{os.getpid()}") as bus:
-            bus.subscribe("log/*", queue_handler(answers), expected_schema="log")
-            time.sleep(0.2)  # let the subscription reach the service before it answers
-            bus.publish(f"fault/{args.kind}", "fault", {"kind": args.kind, "target": target,
-                        "params": params}, t)  # fmt: skip
-            print(f"ddvi fault: {args.kind} {target} sent at t = {t:.0f} s")
-            deadline = time.monotonic() + args.timeout
-            while time.monotonic() < deadline:
-                try:
-                    _, msg = answers.get(timeout=0.1)
-                except queue.Empty:
-                    continue
-                text = msg.body["text"]
-                if text.startswith(f"fault {args.kind} {target}:"):
-                    print(f"{msg.body['service']}: {text}")
-                    return 1 if ": ignored" in text or ": refused" in text else 0
+        status = _publish_and_wait(session, args, run, target, params, t)
+        if status is not None:
+            return status
     who = acting or f"a service matching {target!r}"
     print(f"ddvi fault: no answer from {who} within {args.timeout:g} s", file=sys.stderr)
     return 1

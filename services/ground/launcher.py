@@ -31,7 +31,8 @@ from services.bus import Bus, BusSettings, open_session, queue_handler, wait_for
 from services.config import Deployment
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
-from services.model import holding_margin, orbit_period, panel_schedule
+from services.interface.topics import fault_topic, log_topic, stats_topic
+from services.model import holding_warnings
 
 MODULES = {
     "environment": "services.flight.environment",
@@ -133,39 +134,15 @@ class Launcher:
         """Run the mission; the exit status is 0 only when it completed and was reported."""
         self.out.mkdir(parents=True, exist_ok=True)
         self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
-        for d in self.dep.deputy:
-            if (margin := holding_margin(self.dep, d)) < 0:
-                self.say(
-                    f"warning: deputy {d.name!r} cannot hold a slot: its largest drag (area "
-                    f"factor {d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is "
-                    f"{-margin:.0%} below the chief's, so its along-track error will grow"
-                )
-        panel: dict[str, tuple[float | None, float | None]] = {}  # faults add up in time
-        for t, sc, new_factor, new_angle in panel_schedule(self.dep):
-            factor, angle = panel.get(sc, (None, None))
-            factor = new_factor if new_factor is not None else factor
-            angle = new_angle if new_angle is not None else angle
-            panel[sc] = factor, angle
-            if holding_margin(self.dep, self.dep.deputy_named(sc), factor, angle) < 0:
-                self.say(
-                    f"warning: after its panel fault at orbit {t / orbit_period(self.dep):g} "
-                    f"deputy {sc!r} "
-                    "cannot hold a slot: no attitude within its limit makes its drag match the "
-                    "chief's"
-                )
+        for warning in holding_warnings(self.dep):
+            self.say(f"warning: {warning}")
         if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
             self.say(f"network namespaces {missing} do not exist: run `ddvi netns up "
                      f"{self.dep.path}` first (as root)", error=True)  # fmt: skip
             return 1
-        # client-mode services need a router to relay between them; the hub listens on
-        # loopback and on the launcher's side of every other host's link
-        listen = [self.hub] + [f"tcp/{hub_address(k)}:{self.port}" for k in
-                               range(len(self.dep.host))]  # fmt: skip
-        mode = "router" if self.dep.bus.mode == "client" else "peer"
-        hub = BusSettings(mode=mode, listen=listen, connect=list(self.dep.bus.connect))
         started = time.monotonic()
         try:
-            with open_session(hub) as session:
+            with open_session(self._hub_settings()) as session:
                 first = [s for s in self.dep.services if s != "environment"]
                 # the monitor first, so that it records everything from the first message on
                 self.start("monitor")
@@ -188,7 +165,9 @@ class Launcher:
                 )
                 with Bus(session, self.run, "launcher") as bus:
                     faults: queue.SimpleQueue = queue.SimpleQueue()
-                    bus.subscribe("fault/kill", queue_handler(faults), expected_schema="fault")
+                    bus.subscribe(
+                        fault_topic("kill"), queue_handler(faults), expected_schema="fault"
+                    )
                     self.start("environment")
                     return self._supervise(started, bus, faults)
         except KeyboardInterrupt:
@@ -197,16 +176,24 @@ class Launcher:
         finally:
             self.stop_all()
 
+    def _hub_settings(self) -> BusSettings:
+        """The hub's session: client-mode services need a router to relay between them; it
+        listens on loopback and on the launcher's side of every other host's link."""
+        hosts = range(len(self.dep.host))
+        listen = [self.hub] + [f"tcp/{hub_address(k)}:{self.port}" for k in hosts]
+        mode = "router" if self.dep.bus.mode == "client" else "peer"
+        return BusSettings(mode=mode, listen=listen, connect=list(self.dep.bus.connect))
+
     def _event(self, bus: Bus, level: str, text: str, t: float) -> None:
         """Say it, log it on the bus, and publish the launcher's counters."""
         self.say(text)
         counters = {"restarts": sum(self.restarts.values()), "kills": self.kills}
         counters.update({f"restarts.{k}": v for k, v in self.restarts.items()})
         try:
-            bus.publish("log/launcher", "log", {"service": "launcher", "level": level,
-                        "text": text}, t)  # fmt: skip
-            bus.publish("stats/launcher", "stats", {"service": "launcher",
-                        "counters": counters}, t)  # fmt: skip
+            log = {"service": "launcher", "level": level, "text": text}
+            bus.publish(log_topic("launcher"), "log", log, t)
+            stats = {"service": "launcher", "counters": counters}
+            bus.publish(stats_topic("launcher"), "stats", stats, t)
         except Exception as exc:  # the bus is a report channel here, never a reason to stop
             self.say(f"could not publish: {exc}")
 

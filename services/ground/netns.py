@@ -31,6 +31,7 @@ def hub_address(k: int) -> str:
 
 
 def _ip(*args: str, netns: str | None = None) -> None:
+    """Run ``ip ARGS`` (inside ``netns`` if given); NetnsError when it fails."""
     cmd = ["ip", *(["netns", "exec", netns, "ip"] if netns else []), *args]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
@@ -50,6 +51,7 @@ def available() -> str | None:
 
 
 def exists(netns: str) -> bool:
+    """Whether the named network namespace is there."""
     return Path("/var/run/netns", netns).exists()
 
 
@@ -88,6 +90,7 @@ def down(dep: Deployment) -> None:
 
 
 def add_netns_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The arguments of ``ddvi netns``, for ``services.cli``."""
     p.add_argument("action", choices=("up", "down"))
     p.add_argument("deployment", help="a deployment with [[host]] tables")
     p.add_argument("--delay", type=float, default=0.0, help="netem delay on each link, ms")
@@ -96,6 +99,7 @@ def add_netns_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def netns_command(args: argparse.Namespace) -> int:
+    """``ddvi netns up|down``: 0 when done, 1 when namespaces cannot be made, 2 on bad input."""
     try:
         dep = load_deployment(args.deployment)
     except DeploymentError as exc:

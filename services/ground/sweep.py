@@ -33,6 +33,7 @@ from services.config import (
     resolve,
     write_deployment,
 )
+from services.interface import topics
 
 KINDS = {"delay": "s", "loss": "probability"}
 COLUMNS = [
@@ -58,9 +59,10 @@ def impaired_table(table: dict[str, Any], kind: str, value: float) -> dict[str, 
     if kind not in KINDS:
         raise ValueError(f"sweep kind: expected one of {list(KINDS)}, got {kind!r}")
     key = "delay" if kind == "delay" else "loss"
+    every_nav, every_cmd = topics.nav_state_topic("*"), topics.command_topic("*")
     rules = [
-        {"publisher": "nav-*", "subscriber": "ctrl-*", "topic": "nav/*/state", key: value},
-        {"publisher": "ctrl-*", "subscriber": "environment", "topic": "cmd/*/att", key: value},
+        {"publisher": "nav-*", "subscriber": "ctrl-*", "topic": every_nav, key: value},
+        {"publisher": "ctrl-*", "subscriber": "environment", "topic": every_cmd, key: value},
     ]
     out = copy.deepcopy(table)
     out["link"] = rules + out.get("link", [])
@@ -104,6 +106,7 @@ the nominal model (|K - K*|/|K*| < SUCCESS); a learner can also converge to a wr
 
 
 def succeeded(row: dict[str, Any]) -> bool:
+    """A row whose run completed with learned gains within ``SUCCESS`` of the LQR gain."""
     err = row["gain_error_vs_lqr"]
     return bool(row["learned"] and row["completed"] and err is not None and err < SUCCESS)
 
@@ -131,6 +134,7 @@ def _fmt(x: Any) -> str:
 
 
 def markdown_table(kind: str, rows: list[dict[str, Any]]) -> str:
+    """The rows as a markdown table, with a note on what the columns count."""
     unit = KINDS[kind]
     head = [f"{kind} ({unit})", "deputy", "controller", "completed", "final along-track error (m)",
             "last-orbit max (m)", "learned", "at orbit", "gain error", "dropped", "delayed",
@@ -150,6 +154,8 @@ def markdown_table(kind: str, rows: list[dict[str, Any]]) -> str:
 
 
 def plot(kind: str, rows: list[dict[str, Any]], path: Path) -> None:
+    """Write sweep.png: final along-track error (left) and learned-gain error (right, a cross
+    at 1 where a DDVI deputy did not learn) against the swept value."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -230,6 +236,7 @@ def sweep(
 
 
 def _write(kind: str, rows: list[dict[str, Any]], folder: Path) -> None:
+    """Write sweep.csv and sweep.md of the rows so far."""
     with open(folder / "sweep.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
@@ -238,6 +245,7 @@ def _write(kind: str, rows: list[dict[str, Any]], folder: Path) -> None:
 
 
 def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``ddvi sweep``, for ``services.cli``."""
     p.add_argument("kind", choices=list(KINDS), help="which impairment to sweep")
     p.add_argument("deployment", nargs="?", default=None, help="default: rendezvous")
     p.add_argument("--values", type=float, nargs="+", required=True,
@@ -247,6 +255,8 @@ def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def sweep_command(args: argparse.Namespace) -> int:
+    """Run the sweep and print its table; 0 when every run completed, 1 if not, 2 on bad
+    input."""
     try:
         folder, rows = sweep(args.kind, args.deployment, args.values, args.output, args.orbits)
     except (DeploymentError, ValueError) as exc:

@@ -1,11 +1,21 @@
-"""Topic names below ``ddvi/<run>/``: one function (or constant) builds each, so no service
-spells a topic by hand.
+"""Topic names below ``ddvi/<run>/`` and the topology of the flight system.
 
-A deputy's or a service's name is one key chunk (``check_name`` in the bus refuses ``/`` and
+One function (or constant) builds each topic name, so no service spells a topic by hand.  A
+deputy's or a service's name is one key chunk (``check_name`` in the bus refuses ``/`` and
 wildcards), so each function below returns a key with no wildcards.
+
+``TOPIC_SCHEMAS`` and ``schema_for_topic`` say which message type a topic carries.
+``TOPOLOGY`` says, as data, who publishes and who subscribes each topic and how often (the
+basis of access control: ``topics_published_by``, ``topics_subscribed_by``); ``SERVICES``
+names every kind of participant.  ``python -m services.interface.reference`` renders them into
+``docs/interface.md``.
 """
 
 from __future__ import annotations
+
+import functools
+import re
+from dataclasses import dataclass
 
 CLOCK = "clock"
 """The environment's simulation clock (``final = true`` ends the mission)."""
@@ -57,3 +67,233 @@ def log_topic(service: str) -> str:
 def alive_topic(service: str) -> str:
     """``alive/<service>``: a service's liveliness token (a zenoh liveliness key, no payload)."""
     return f"alive/{service}"
+
+
+# ---- which schema each topic carries ---------------------------------------------------------
+
+TOPIC_SCHEMAS: tuple[tuple[str, str], ...] = (
+    ("clock", "clock"),
+    ("exo/state", "exo"),
+    ("truth/*", "truth"),
+    ("nav/*/state", "nav"),
+    ("cmd/*/att", "cmd"),
+    ("ctrl/*/gains", "gains"),
+    ("ctrl/*/status", "status"),
+    ("fault/**", "fault"),
+    ("stats/*", "stats"),
+    ("log/*", "log"),
+)
+"""Which schema each topic (below ``ddvi/<run>/``) carries (docs/design.md, "The bus"): ``*`` is
+one key chunk, ``**`` the rest of the key."""
+
+
+@functools.lru_cache(maxsize=4096)  # a run has a few dozen topics; garbage may add more
+def schema_for_topic(topic: str) -> str | None:
+    """The schema a topic carries (``TOPIC_SCHEMAS``), None for a topic outside the table."""
+    chunks = topic.split("/")
+    for pattern, schema in TOPIC_SCHEMAS:
+        want = pattern.split("/")
+        if want[-1] == "**":  # the rest of the key, at least one chunk
+            want, chunks_ = want[:-1], chunks[: len(want) - 1]
+            if len(chunks) < len(want) + 1:
+                continue
+        else:
+            chunks_ = chunks
+        if len(want) == len(chunks_) and all(
+            w in ("*", c) for w, c in zip(want, chunks_, strict=True)
+        ):
+            return schema
+    return None
+
+
+# ---- the topology: who publishes and who subscribes each topic -------------------------------
+# In the names below, <sc> is a deputy's name, <craft> the chief or a deputy, <service> the
+# publishing service's own name and <pid> a ground command's process id.
+
+
+@dataclass(frozen=True)
+class ServiceName:
+    """A kind of bus participant: its name (a template with placeholders) and its job."""
+
+    name: str
+    module: str
+    doc: str
+
+
+SERVICES: tuple[ServiceName, ...] = (
+    ServiceName("environment", "services.flight.environment", "the truth and the time master"),
+    ServiceName("nav-<sc>", "services.flight.navigation", "one deputy's relative navigation"),
+    ServiceName(
+        "ctrl-<sc>",
+        "services.flight.controller",
+        "one deputy's controller, the software under test",
+    ),
+    ServiceName(
+        "monitor", "services.ground.monitor", "the ground: records every message, writes the report"
+    ),
+    ServiceName(
+        "launcher", "services.ground.launcher", "starts and supervises the services; acts on kills"
+    ),
+    ServiceName("ground-<pid>", "services.ground.faults", "an operator's `ddvi fault` command"),
+)
+"""Every kind of participant on the bus, by name."""
+
+_EVERY_SERVICE = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", "launcher")
+_FLIGHT_RUNTIME = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor")  # services.flight.runtime
+
+
+@dataclass(frozen=True)
+class Route:
+    """One topic of the flight system: the schema it carries, the services that publish and
+    subscribe it (``ServiceName`` templates) and how often it is published, in words."""
+
+    topic: str
+    schema: str
+    publishers: tuple[str, ...]
+    subscribers: tuple[str, ...]
+    rate: str
+
+
+TOPOLOGY: tuple[Route, ...] = (
+    Route(
+        CLOCK,
+        "clock",
+        ("environment",),
+        ("nav-<sc>", "ctrl-<sc>", "monitor", "ground-<pid>"),
+        "every flight-software step (run.fsw_period) in lock-step, every navigation sample "
+        "(run.nav_period) in real time, and a final one",
+    ),
+    Route(
+        EXOSTATE,
+        "exo",
+        ("environment",),
+        ("ctrl-<sc>", "monitor"),
+        "every navigation sample (run.nav_period)",
+    ),
+    Route(
+        truth_topic("<craft>"),
+        "truth",
+        ("environment",),
+        ("nav-<sc>", "monitor"),
+        "every navigation sample (run.nav_period), for the chief and every deputy; "
+        "nav-<sc> takes truth/chief and truth/<sc>",
+    ),
+    Route(
+        nav_state_topic("<sc>"),
+        "nav",
+        ("nav-<sc>",),
+        ("ctrl-<sc>", "monitor"),
+        "every navigation sample of the deputy (its navigation.period)",
+    ),
+    Route(
+        command_topic("<sc>"),
+        "cmd",
+        ("ctrl-<sc>",),
+        ("environment", "monitor"),
+        "every flight-software step (run.fsw_period)",
+    ),
+    Route(
+        gains_topic("<sc>"),
+        "gains",
+        ("ctrl-<sc>",),
+        ("monitor",),
+        "at the start, every flight-software step while exploring, on learning, and at the end",
+    ),
+    Route(
+        status_topic("<sc>"),
+        "status",
+        ("ctrl-<sc>",),
+        ("monitor",),
+        "every run.status_every flight-software steps, and at the end",
+    ),
+    Route(
+        fault_topic("kill"),
+        "fault",
+        ("ground-<pid>",),
+        ("launcher", "monitor"),
+        "on an operator's command (ddvi fault RUN kill)",
+    ),
+    Route(
+        fault_topic("panel"),
+        "fault",
+        ("ground-<pid>",),
+        ("environment", "monitor"),
+        "on an operator's command (ddvi fault RUN panel)",
+    ),
+    Route(
+        fault_topic("bias"),
+        "fault",
+        ("ground-<pid>",),
+        ("nav-<sc>", "monitor"),
+        "on an operator's command (ddvi fault RUN bias)",
+    ),
+    Route(
+        fault_topic("link"),
+        "fault",
+        ("ground-<pid>",),
+        _FLIGHT_RUNTIME,
+        "on an operator's command (ddvi fault RUN link)",
+    ),
+    Route(
+        stats_topic("<service>"),
+        "stats",
+        _EVERY_SERVICE,
+        ("monitor",),
+        "every run.status_every flight-software steps (environment, controllers), after every "
+        "restart or kill (launcher), and at each service's end",
+    ),
+    Route(
+        log_topic("<service>"),
+        "log",
+        _EVERY_SERVICE,
+        ("monitor", "ground-<pid>"),
+        "on an event: a fault acted on, a learning outcome, a warning",
+    ),
+)
+"""Every topic below ``ddvi/<run>/``: its schema, publishers, subscribers and rate.  The
+monitor subscribes to every topic (``ddvi/<run>/**``) and records it."""
+
+_PLACEHOLDER = re.compile(r"<([a-z]+)>")
+
+
+@functools.lru_cache(maxsize=256)
+def _name_pattern(template: str) -> re.Pattern[str]:
+    """A ``ServiceName`` template as a regular expression, one group per placeholder."""
+    parts = _PLACEHOLDER.split(template)  # literal, name, literal, name, ..., literal
+    return re.compile(
+        "".join(re.escape(p) if i % 2 == 0 else f"(?P<{p}>.+)" for i, p in enumerate(parts))
+    )
+
+
+def _fill(template: str, names: dict[str, str]) -> str:
+    """A topic template with its placeholders from ``names``, any other as ``*``."""
+    return _PLACEHOLDER.sub(lambda m: names.get(m.group(1), "*"), template)
+
+
+def _keys(service: str, role: str) -> tuple[str, ...]:
+    """The topics (key expressions, unknown placeholders as ``*``) that ``service`` has a
+    ``role`` ("publishers" or "subscribers") in, in table order."""
+    out: list[str] = []
+    for route in TOPOLOGY:
+        for template in getattr(route, role):
+            match = _name_pattern(template).fullmatch(service)
+            if match is None:
+                continue
+            names = match.groupdict()
+            if role == "publishers":  # <service> in a topic is its publisher's own name
+                names["service"] = service
+            key = _fill(route.topic, names)
+            if key not in out:
+                out.append(key)
+    return tuple(out)
+
+
+def topics_published_by(service: str) -> tuple[str, ...]:
+    """The topics ``service`` (a bus service name, e.g. ``nav-deputy1``) may publish, as key
+    expressions below ``ddvi/<run>/`` (``*`` for any craft); () for a name of no service."""
+    return _keys(service, "publishers")
+
+
+def topics_subscribed_by(service: str) -> tuple[str, ...]:
+    """The topics ``service`` subscribes, as key expressions below ``ddvi/<run>/``."""
+    return _keys(service, "subscribers")

@@ -1,31 +1,35 @@
 """The bridge between a deployment and the mathematics: mission timing and exosystem, the
-nominal linear model and its LQR gains, initial states, and the truth backends (built-in
-propagator, Basilisk) behind one protocol.
+nominal linear model and its LQR gains, initial states and slot holding (``mission``), and
+the truth backends behind one protocol (``truth``: the protocol and the built-in propagator;
+``basilisk``; ``backends.open_truth`` chooses).
 
 May import: ``ddvi_core``, ``services.config``. Not the bus, processes or tools.
 ``services.model.basilisk`` needs the optional ``basilisk`` extra and is imported only when a
 deployment asks for it.
 """
 
+from services.model.backends import open_truth
 from services.model.mission import (
     IN_PLANE,
-    BuiltinTruth,
-    ReentryError,
-    Truth,
     describe_panel,
     duration,
     exostate,
     facet_normal,
     holding_margin,
+    holding_warnings,
     initial_states,
     lqr_gains,
     mean_motion,
     navigation_state,
     nominal_problem,
     on_grid,
-    open_truth,
     orbit_period,
     panel_schedule,
+)
+from services.model.truth import (
+    BuiltinTruth,
+    ReentryError,
+    Truth,
     truth_atmosphere,
     truth_craft,
     truth_step,
@@ -41,6 +45,7 @@ __all__ = [
     "exostate",
     "facet_normal",
     "holding_margin",
+    "holding_warnings",
     "initial_states",
     "lqr_gains",
     "mean_motion",

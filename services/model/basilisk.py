@@ -3,13 +3,13 @@
 Chosen with ``environment.backend = "basilisk"`` in a deployment; needs the optional extra
 (``pip install -e '.[basilisk]'``).  Everything else (navigation, controllers, monitor, the
 environment service's bus traffic) is unchanged: :class:`BasiliskTruth` implements
-``services.model.mission.Truth`` as :class:`services.model.mission.BuiltinTruth` does.
+``services.model.truth.Truth`` as :class:`services.model.truth.BuiltinTruth` does.
 
 One Basilisk ``Spacecraft`` per craft (the chief, then each deputy), each with
 
 - gravity: Earth as central body with ``MU_EARTH``; with ``environment.j2`` a spherical-harmonics
   model of degree 2 whose only non-zero coefficient is the normalised C20 = -J2/sqrt(5), set in
-  code (Basilisk cannot fetch its gravity files here).  Without SPICE the planet frame is the
+  code (so no gravity file need be fetched).  Without SPICE the planet frame is the
   inertial frame, so J2 acts about inertial z as in the built-in truth;
 - drag (with ``environment.drag``): ``exponentialAtmosphere`` and a one-facet
   ``facetDragDynamicEffector`` with the deployment's area (times the deputy's area_factor),
@@ -23,7 +23,7 @@ One Basilisk ``Spacecraft`` per craft (the chief, then each deputy), each with
 Differences from the built-in truth, by design of Basilisk: a fixed-step RK4 at
 ``environment.basilisk_step`` (1 s by default), with the density and the attitude reference
 refreshed once per step and held over it (the built-in truth evaluates both at every stage of
-an adaptive DOP853).  Agreement, measured in tests/test_basilisk.py: one orbit of the default
+an adaptive DOP853).  Agreement, measured in tests/model/test_basilisk.py: one orbit of the default
 chief and deputy under varying commands, relative Hill position within 4e-7 m without drag (J2
 on or off) and 0.16 m with drag, of the 36 m drag moves the deputy in that orbit (the hold
 error, proportional to the step).
@@ -49,7 +49,8 @@ from numpy.typing import NDArray
 
 from ddvi_core.constants import J2_EARTH, MU_EARTH, R_EARTH
 from services.config import Deployment
-from services.model.mission import check_altitude, initial_states, truth_craft
+from services.model.mission import initial_states
+from services.model.truth import check_altitude, truth_craft
 
 _NS = 1_000_000_000  # Basilisk's clock counts nanoseconds
 _TASK = "truth"

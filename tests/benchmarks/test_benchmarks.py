@@ -1,6 +1,7 @@
 """The benchmarks' own measuring tools: the learning benchmark's search for the fewest
 iterations to a gain tolerance, the mission benchmark's memory of a process tree, the
-one-process run's split of its work among the services, and the lock-step floor."""
+one-process run's split of its work among the services, the lock-step floor, and what
+``ddvi bench`` says when the benchmarks cannot be imported."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from services.flight.inprocess import run_in_process
 from services.model import duration
 
 
+@pytest.mark.integration  # runs the mission's learner about a dozen times
 def test_iterations_to_finds_where_the_gain_error_crosses_the_tolerance() -> None:
     system = BUILTIN_SYSTEMS["rendezvous"]()
     n, wall, err = iterations_to(system, 1e-3, upper=30_000, resolution=2_000)
@@ -34,6 +36,7 @@ def test_iterations_to_refuses_a_bound_that_does_not_reach_the_tolerance() -> No
         iterations_to(system, 1e-3, upper=100, resolution=10)
 
 
+@pytest.mark.integration
 def test_peak_memory_counts_a_descendant_once() -> None:
     """A grandchild holding 200 MB of its own, under a parent that holds nothing: the
     summed memory of the tree sees it, and once."""
@@ -63,6 +66,7 @@ def test_one_process_timing_splits_its_work_among_the_services() -> None:
     assert all(timing[name] > 0 for name in shares)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("layer", ["plain", "bus"])
 def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
     """Three deputies, 40 steps: the monitor has every sample, and each step waits for the
@@ -74,6 +78,7 @@ def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
     assert floor["loop_s"] >= 40 * 0.006
 
 
+@pytest.mark.integration
 def test_floor_ends_when_one_of_its_processes_fails() -> None:
     """A deputy name zenoh cannot put under: its processes fail at their first declaration,
     and the floor says which instead of waiting for them."""
@@ -86,3 +91,12 @@ def test_floor_refuses_an_empty_mission_and_an_unknown_layer() -> None:
         run_floor([], 10)
     with pytest.raises(ValueError, match="layer 'zmq' is not one of"):
         run_floor(["a"], 10, layer="zmq")
+
+
+def test_ddvi_bench_without_the_benchmarks_says_why_in_one_line(monkeypatch, capsys) -> None:
+    from services.cli import EXIT_USAGE, main
+
+    monkeypatch.setitem(sys.modules, "benchmarks.run", None)  # import fails
+    assert main(["bench", "--quick"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert err.startswith("ddvi bench: cannot import the benchmarks") and err.count("\n") == 1

@@ -1,4 +1,4 @@
-"""services.bus.endpoint: settings, and two real zenoh peer sessions on loopback in one process."""
+"""services.bus: settings, and two real zenoh peer sessions on loopback in one process."""
 
 from __future__ import annotations
 
@@ -88,12 +88,12 @@ def test_default_settings_follow_the_convention() -> None:
         ({"connect": ["tcp/127.0.0.1:7447", 5]}, r"bus.connect\[1\]"),
         ({"mode": "client", "connect": []}, "bus.connect"),
         ({"mode": "peer", "listen": []}, "bus.listen"),
-        ({"conect": []}, "bus.conect"),
+        ({"mode": "router", "listen": []}, "bus.listen"),
     ],
 )
 def test_settings_validation_names_the_key(table: dict[str, Any], key: str) -> None:
     with pytest.raises(ValueError, match=rf"^{key}:"):
-        BusSettings.from_table(table)
+        BusSettings(**table)
 
 
 def test_names_are_checked(sessions: tuple[zenoh.Session, zenoh.Session]) -> None:

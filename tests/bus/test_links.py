@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import dataclass
 
 import pytest
 
+from ddvi_core.tables import from_table
 from services.bus import LinkModel, LinkRule, LinkSpec, select_rule
 
 
@@ -37,11 +39,28 @@ def test_spec_validation_names_the_field(kwargs: dict[str, object], name: str) -
 
 
 def test_spec_from_table() -> None:
-    assert LinkSpec.from_table({"delay": 2, "loss": 0.1}) == LinkSpec(delay=2, loss=0.1)
-    with pytest.raises(ValueError, match=r"LinkSpec\.dealy: unknown key"):
-        LinkSpec.from_table({"dealy": 2})
+    """A TOML table reads into a LinkSpec by the one table reader, which reports LinkSpec's
+    own checks and unknown keys at the table's key path."""
+    assert from_table(LinkSpec, {"delay": 2, "loss": 0.1}) == LinkSpec(delay=2, loss=0.1)
+    with pytest.raises(ValueError, match=r"link\.dealy: unknown key \(did you mean 'delay'\?\)"):
+        from_table(LinkSpec, {"dealy": 2}, "link")
+    with pytest.raises(ValueError, match=r"link\.loss: expected a probability in \[0, 1\]"):
+        from_table(LinkSpec, {"loss": 1.5}, "link")
     with pytest.raises(ValueError, match="clock"):
         LinkModel(LinkSpec(), seed=0, clock="gps")
+
+
+def test_spec_of_a_subclass_is_a_plain_spec() -> None:
+    """A subclass adding routing fields (a deployment's [[link]]) checks only the link
+    parameters, names itself in its messages, and gives its parameters as a plain LinkSpec."""
+
+    @dataclass(frozen=True)
+    class Routed(LinkSpec):
+        publisher: str = "*"
+
+    assert Routed(delay=2.0, publisher="nav-*").spec == LinkSpec(delay=2.0)
+    with pytest.raises(ValueError, match=r"Routed\.jitter:"):
+        Routed(jitter=-1.0)
 
 
 def test_ideal_link_passes_everything_in_order_immediately() -> None:

@@ -63,7 +63,7 @@ def test_rendezvous_with_balanced_scaling_converges() -> None:
 
 
 def test_raw_rendezvous_with_harmonic_steps_does_not_converge() -> None:
-    """DESIGN.md section 6: eps_k = 1/k in seconds with R = 1e7 gets nowhere."""
+    """docs/design.md, "The paper's errata": eps_k = 1/k in seconds with R = 1e7 gets nowhere."""
     prob = models.rendezvous_problem()
     K_are = solve_lqr(prob.A, prob.B, prob.Q, prob.R).K
     res = value_iteration(prob.A, prob.B, prob.Q, prob.R, scaling=False, max_iterations=3000)

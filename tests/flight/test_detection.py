@@ -112,6 +112,7 @@ def test_relearn_keys_are_checked() -> None:
         deployment_from_table(table)
 
 
+@pytest.mark.integration  # a whole mission of tens of orbits in one process
 def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> None:
     """deployments/panel-fault.toml in one process, cut after orbit 34, with a second DDVI
     deputy whose panel stays whole: both learn at orbit 15 and arm the detector; the faulted
@@ -151,6 +152,7 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
     assert faulted.L.shape == (1, pr.q + 1)  # L now weighs the density ratio too
 
 
+@pytest.mark.integration  # a whole mission of tens of orbits in one process
 def test_stuck_panel_is_detected_and_the_learner_switches_to_new_gains() -> None:
     """deployments/panel-stuck.toml in one process, cut after orbit 45: the facet's hinge
     sticks at 30 deg at orbit 21.  The DDVI deputy detects it from its own data within three
@@ -180,7 +182,7 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
     schedules a retry ``retry_orbits`` later."""
     from types import SimpleNamespace
 
-    from services.flight.controller import Controller
+    from services.flight.control import Controller
 
     table = read_table("panel-fault")
     table["deputy"][1]["learning"]["relearn_max_attempts"] = 3

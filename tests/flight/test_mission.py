@@ -19,8 +19,8 @@ from services.config import (
     load_deployment,
     read_table,
 )
-from services.flight.controller import Controller
-from services.ground.monitor import read_recording
+from services.flight.control import Controller
+from services.ground.recording import read_recording
 from services.interface import schema_for_topic
 
 SHORT = """
@@ -293,6 +293,7 @@ def test_bad_deployment_names_the_key(table: dict, needle: str) -> None:
     assert needle in str(exc.value)
 
 
+@pytest.mark.integration
 def test_bad_deployment_file_exits_2(tmp_path: Path) -> None:
     p = tmp_path / "bad.toml"
     p.write_text('[run]\nmode = "fast"\n[[deputy]]\nname = "a"\n')

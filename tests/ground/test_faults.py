@@ -25,9 +25,11 @@ import zenoh
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
 from services.config import deployment_from_table, load_deployment
 from services.flight.inprocess import run_in_process
-from services.ground.launcher import free_port
-from services.ground.monitor import read_recording
-from services.interface import MAX_PAYLOAD, encode, schema_for_topic
+from services.ground.recording import read_recording
+from services.interface import MAX_PAYLOAD, encode, schema_for_topic, topics
+
+# every test here starts a mission through `ddvi run` (or the `ddvi fault` command)
+pytestmark = pytest.mark.integration
 
 GARBLED = """
 [run]
@@ -103,7 +105,6 @@ def garbage_for(topic: str, valid: bytes, rng: np.random.Generator) -> dict[str,
     }
 
 
-@pytest.mark.integration
 def test_garbage_on_every_topic_changes_nothing_the_craft_do(
     start_mission: Callable[[str], Mission],
 ) -> None:
@@ -152,22 +153,8 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(
     assert sum(rounds.values()) > 50, rounds  # the intruder was heard during the run
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
-    services = summary["messages"]["services"]
-    # every bad message a service received is counted, once, by its reason
-    for name, inputs in INPUTS.items():
-        c = services[name]
-        n = sum(k for key, k in rounds.items() if any(zenoh.KeyExpr(f"ddvi/*/{i}").intersects(
-            zenoh.KeyExpr(key)) for i in inputs))  # fmt: skip
-        assert n > 0, name
-        assert c["handler_errors"] == 0, name
-        # random bytes and truncated payloads do not unpack; one of each other kind
-        assert c["rejected.malformed"] == 2 * n, name
-        for reason in ("oversized", "wrong_schema", "non_finite"):
-            assert c[f"rejected.{reason}"] == n, (name, reason)
-        replays = ("ignored.duplicate", "ignored.stale") if name == "monitor" else (
-            "rejected.duplicate", "rejected.stale")  # fmt: skip
-        assert c[replays[0]] + c[replays[1]] == n, name
-    monitor = services["monitor"]
+    _check_rejections(summary["messages"]["services"], rounds)
+    monitor = summary["messages"]["services"]["monitor"]
     # nothing is lost: every payload that reached the monitor is in the recording
     recorded, complete = read_recording(out / "recording.mcap")
     assert complete
@@ -214,11 +201,29 @@ max_restarts = 1
 """
 
 
+def _check_rejections(services: dict[str, dict[str, int]], rounds: dict[str, int]) -> None:
+    """Every bad message a service received is counted, once, by its reason (``rounds``: key
+    -> how many times each kind of garbage went on it)."""
+    for name, inputs in INPUTS.items():
+        c = services[name]
+        n = sum(k for key, k in rounds.items() if any(zenoh.KeyExpr(f"ddvi/*/{i}").intersects(
+            zenoh.KeyExpr(key)) for i in inputs))  # fmt: skip
+        assert n > 0, name
+        assert c["handler_errors"] == 0, name
+        # random bytes and truncated payloads do not unpack; one of each other kind
+        assert c["rejected.malformed"] == 2 * n, name
+        for reason in ("oversized", "wrong_schema", "non_finite"):
+            assert c[f"rejected.{reason}"] == n, (name, reason)
+        replays = ("ignored.duplicate", "ignored.stale") if name == "monitor" else (
+            "rejected.duplicate", "rejected.stale")  # fmt: skip
+        assert c[replays[0]] + c[replays[1]] == n, name
+
+
 class Mission:
     """A deployment started through ``ddvi run``, watched from a plain zenoh session."""
 
-    def __init__(self, tmp_path: Path, text: str) -> None:
-        self.port = free_port()
+    def __init__(self, tmp_path: Path, text: str, port: int) -> None:
+        self.port = port
         path = self.path = tmp_path / "mission.toml"
         path.write_text(text.format(port=self.port))
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
@@ -253,7 +258,7 @@ class Mission:
         """What ``ddvi fault RUN kill SERVICE`` sends, put at once (no CLI start-up)."""
         body = {"kind": "kill", "target": service, "params": {}}
         payload = encode("fault", body, seq=0, t=self.t, src=f"test-{service}")
-        key = f"ddvi/{self.run}/fault/kill"
+        key = f"ddvi/{self.run}/{topics.fault_topic('kill')}"
         self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def fault(self, *args: str) -> subprocess.CompletedProcess:
@@ -282,12 +287,12 @@ class Mission:
 
 
 @pytest.fixture
-def start_mission(tmp_path: Path) -> Iterator[Callable[[str], Mission]]:
+def start_mission(tmp_path: Path, free_port: int) -> Iterator[Callable[[str], Mission]]:
     """Start missions through ``ddvi run``; whatever happens, close them after the test."""
     missions: list[Mission] = []
 
     def start(text: str) -> Mission:
-        missions.append(Mission(tmp_path, text))
+        missions.append(Mission(tmp_path, text, free_port))
         return missions[-1]
 
     yield start
@@ -295,7 +300,6 @@ def start_mission(tmp_path: Path) -> Iterator[Callable[[str], Mission]]:
         mission.close()
 
 
-@pytest.mark.integration
 def test_killed_services_are_restarted_and_the_mission_completes(
     start_mission: Callable[[str], Mission],
 ) -> None:
@@ -349,7 +353,6 @@ def test_killed_services_are_restarted_and_the_mission_completes(
     assert min(np.diff(cmds["ddvi"])) >= 60.0 - 1e-6
 
 
-@pytest.mark.integration
 def test_a_crash_without_restart_ends_the_run_with_the_recording_intact(
     start_mission: Callable[[str], Mission],
 ) -> None:
@@ -396,7 +399,6 @@ def _series(csv: Path, deputy: str) -> dict[str, np.ndarray]:
     return {k: np.array([float(r[k]) for r in rows]) for k in ("t", "y", "nav_y")}
 
 
-@pytest.mark.integration
 def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     start_mission: Callable[[str], Mission],
 ) -> None:
@@ -439,7 +441,6 @@ def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     assert abs(error[k + 1] - error[k - 2] - 100.0) < 5.0
 
 
-@pytest.mark.integration
 def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) -> None:
     """`ddvi fault RUN link` impairs a link of a running mission from then on: every command
     the lossy link drops is one the environment misses, and the delayed link holds samples."""
@@ -478,8 +479,8 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
         (["kill", "ctrl-a", "--timeout", "0.5"], 1, "no clock from run 'norun'"),
     ],
 )
-def test_fault_command_errors(args: list[str], status: int, text: str) -> None:
-    hub = f"tcp/127.0.0.1:{free_port()}"
+def test_fault_command_errors(args: list[str], status: int, text: str, free_port: int) -> None:
+    hub = f"tcp/127.0.0.1:{free_port}"
     cmd = [sys.executable, "-m", "services.cli", "fault", "norun", *args, "--hub", hub]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert r.returncode == status and text in r.stderr, r.stderr

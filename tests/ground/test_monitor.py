@@ -1,4 +1,5 @@
-"""The ground monitor as a real process on a real zenoh hub: recording, report, stop paths."""
+"""The ground monitor as a real process on a real zenoh hub: recording, report, stop paths;
+and ``ddvi monitor`` (the tap) on that hub."""
 
 from __future__ import annotations
 
@@ -28,18 +29,11 @@ from ddvi_core.constants import MU_EARTH
 from ddvi_core.orbit import rv_to_hill
 from services.bus import Bus, BusSettings, open_session, wait_for_alive
 from services.config import load_deployment
-from services.ground.launcher import free_port
-from services.ground.monitor import (
-    add_monitor_arguments,
-    format_sample,
-    message_json_schema,
-    monitor_command,
-    read_recording,
-)
-from services.ground.report import chief_acceleration, hill_states
-from services.interface import SCHEMAS
+from services.ground.recording import read_recording
+from services.ground.tap import add_monitor_arguments, format_sample, monitor_command
+from services.interface import topics
 from services.model import lqr_gains, orbit_period
-from tests.support import unique_run_name, wait_until
+from tests.support import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT = 10.0
@@ -65,16 +59,15 @@ y_ref = -20.0
 """
 
 
-@pytest.fixture(scope="module")
-def hub() -> Iterator[tuple[zenoh.Session, str]]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    with open_session(BusSettings(mode="peer", listen=[endpoint], connect=[])) as session:
-        yield session, endpoint
+# every test here runs on a zenoh hub, most with the monitor as a process
+pytestmark = pytest.mark.integration
 
 
 @pytest.fixture
-def run() -> str:
-    return unique_run_name("mon")
+def hub(free_port: int) -> Iterator[tuple[zenoh.Session, str]]:
+    endpoint = f"tcp/127.0.0.1:{free_port}"
+    with open_session(BusSettings(mode="peer", listen=[endpoint], connect=[])) as session:
+        yield session, endpoint
 
 
 def circular(theta: float, a: float = A) -> tuple[np.ndarray, np.ndarray]:
@@ -129,8 +122,8 @@ class Monitor:
 
 
 @pytest.fixture
-def monitor(tmp_path: Path, hub: tuple[zenoh.Session, str], run: str) -> Iterator[Monitor]:
-    m = Monitor(tmp_path, hub, run)
+def monitor(tmp_path: Path, hub: tuple[zenoh.Session, str], run_name: str) -> Iterator[Monitor]:
+    m = Monitor(tmp_path, hub, run_name)
     try:
         yield m
     finally:
@@ -166,16 +159,16 @@ class Mission:
         t = 10.0 * k
         fsw = k % 6 == 0
         clock = {"step": k, "dt": 10.0, "fsw": fsw, "mode": "lockstep", "final": k == last}
-        self.pub("environment", "clock", "clock", clock, t)
+        self.pub("environment", topics.CLOCK, "clock", clock, t)
         theta = self.n * t
         for sc in ("chief", "alpha", "beta"):
             r, v = circular(theta - (0.0 if sc == "chief" else self.offset(sc, t)))
             self.last_truth[sc] = (r, v)
             body = {"sc": sc, "r_N": r, "v_N": v, "sigma_BN": np.zeros(3)}
-            self.pub("environment", f"truth/{sc}", "truth", body, t)
+            self.pub("environment", topics.truth_topic(sc), "truth", body, t)
         u = theta
         v5 = [1.0, math.cos(u), math.sin(u), math.cos(2 * u), math.sin(2 * u)]
-        self.pub("environment", "exo/state", "exo", {"v": v5, "phase": u}, t)
+        self.pub("environment", topics.EXOSTATE, "exo", {"v": v5, "phase": u}, t)
         for sc in ("alpha", "beta"):
             rc, vc = self.last_truth["chief"]
             rd, vd = self.last_truth[sc]
@@ -185,12 +178,12 @@ class Mission:
                 "altitude": 300e3,
                 "valid": True,
             }
-            self.pub(f"nav-{sc}", f"nav/{sc}/state", "nav", nav, t)
+            self.pub(f"nav-{sc}", topics.nav_state_topic(sc), "nav", nav, t)
         if fsw:
             for sc in ("alpha", "beta"):
                 sigma = [0.0, 0.0, 0.1 * math.sin(t / 300.0)]
                 cmd = {"sc": sc, "sigma": sigma, "for_t": t}
-                self.pub(f"ctrl-{sc}", f"cmd/{sc}/att", "cmd", cmd, t)
+                self.pub(f"ctrl-{sc}", topics.command_topic(sc), "cmd", cmd, t)
             if k == 0:
                 self.gains("alpha", self.K_lqr["alpha"], "lqr", t)
             if t < self.t_learn or self.t_detect <= t < self.t_relearn:
@@ -206,20 +199,20 @@ class Mission:
                         "sc": sc, "mode": mode, "phase": phase, "samples": k, "intervals": k // 60,
                         "rank": 0, "rank_needed": 34, "counters": {"iterations": 3},
                     }  # fmt: skip
-                    self.pub(f"ctrl-{sc}", f"ctrl/{sc}/status", "status", status, t)
+                    self.pub(f"ctrl-{sc}", topics.status_topic(sc), "status", status, t)
                 self.stats(t)
 
     def gains(self, sc: str, K: np.ndarray, source: str, t: float) -> None:
         body = {"sc": sc, "K": K, "L": np.zeros((1, 5)), "source": source, "iteration": 7,
                 "converged": source != "initial"}  # fmt: skip
-        self.pub(f"ctrl-{sc}", f"ctrl/{sc}/gains", "gains", body, t)
+        self.pub(f"ctrl-{sc}", topics.gains_topic(sc), "gains", body, t)
 
     def stats(self, t: float, only: tuple[str, ...] | None = None) -> None:
         for s in only or self.SERVICES:
             counters = dict(self.buses[s].counters)
             if s == "environment":
                 counters.update(late_commands=2, missing_commands=0)
-            self.pub(s, f"stats/{s}", "stats", {"service": s, "counters": counters}, t)
+            self.pub(s, topics.stats_topic(s), "stats", {"service": s, "counters": counters}, t)
 
     def garbage(self) -> None:
         self.session.put(f"ddvi/{self.run}/garbage", b"\xc1 definitely not msgpack")
@@ -317,8 +310,11 @@ def test_monitor_records_and_reports_a_mission(monitor: Monitor) -> None:
     assert msgs["totals"]["late"] == 2
     sent_before_final = sum(mission.buses[s].counters["sent"] for s in Mission.SERVICES)
     assert sent_before_final - len(Mission.SERVICES) <= msgs["totals"]["sent"]
+    _check_files(out, summary, last)
 
-    # -- figures, CSV, markdown
+
+def _check_files(out: Path, summary: dict[str, Any], last: int) -> None:
+    """The figures, the CSV and report.md of the synthetic mission ending at step ``last``."""
     for name in summary["figures"]:
         assert (out / name).stat().st_size > 5000
     assert {"hill_x.png", "hill_y.png", "hill_xy.png", "hill_xdot.png", "hill_ydot.png",
@@ -377,7 +373,7 @@ def test_kill_9_loses_at_most_the_last_flush_period(monitor: Monitor) -> None:
 
 
 def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
-    hub: tuple[zenoh.Session, str], run: str
+    hub: tuple[zenoh.Session, str], run_name: str
 ) -> None:
     session, endpoint = hub
     config = zenoh.Config()  # a client that knows nothing of services.bus.endpoint
@@ -388,9 +384,9 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
     client = zenoh.open(config)
     try:
         sub = client.declare_subscriber(
-            f"ddvi/{run}/**", lambda s: received.put((str(s.key_expr), s.payload.to_bytes()))
+            f"ddvi/{run_name}/**", lambda s: received.put((str(s.key_expr), s.payload.to_bytes()))
         )
-        with Bus(session, run, "nav-alpha") as bus:
+        with Bus(session, run_name, "nav-alpha") as bus:
             body = {
                 "sc": "alpha",
                 "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3],
@@ -417,7 +413,7 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
     key, payload = received.get_nowait()
     batches = [received.get_nowait()[1]]
     msg = msgpack.unpackb(payload)
-    assert key == f"ddvi/{run}/nav/alpha/state"
+    assert key == f"ddvi/{run_name}/nav/alpha/state"
     assert set(msg) == {"schema", "version", "seq", "t", "src", "body"}
     assert (msg["schema"], msg["t"], msg["src"]) == ("nav", 12.5, "nav-alpha")
     assert msg["body"] == body
@@ -433,44 +429,23 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
 
 
 def test_monitor_command_prints_one_line_per_message(
-    hub: tuple[zenoh.Session, str], run: str
+    hub: tuple[zenoh.Session, str], run_name: str
 ) -> None:
     session, endpoint = hub
     args = add_monitor_arguments(argparse.ArgumentParser()).parse_args(
-        [f"ddvi/{run}/**", "--hub", endpoint, "--count", "3", "--seconds", "10"]
+        [f"ddvi/{run_name}/**", "--hub", endpoint, "--count", "3", "--seconds", "10"]
     )
     lines: list[str] = []
     result: list[int] = []
     thread = threading.Thread(target=lambda: result.append(monitor_command(args, lines.append)))
     thread.start()
-    with Bus(session, run, "environment") as bus:
+    with Bus(session, run_name, "environment") as bus:
         clock = {"step": 1, "dt": 10.0, "fsw": True, "mode": "lockstep", "final": False}
         while thread.is_alive():
             bus.publish("clock", "clock", clock, 10.0)
-            session.put(f"ddvi/{run}/junk", b"\x00\x01")
+            session.put(f"ddvi/{run_name}/junk", b"\x00\x01")
             time.sleep(0.02)
     thread.join(TIMEOUT)
     assert result == [0] and len(lines) == 3
-    assert any(f"ddvi/{run}/clock clock t=10.000 src=environment" in ln for ln in lines)
+    assert any(f"ddvi/{run_name}/clock clock t=10.000 src=environment" in ln for ln in lines)
     assert "REJECTED malformed" in format_sample("k", b"\x00\x01")[0]
-
-
-def test_hill_states_match_rv_to_hill() -> None:
-    rng = np.random.default_rng(3)
-    r_c, v_c = zip(*(circular(th) for th in rng.uniform(0, 6, 20)), strict=True)
-    rc, vc = np.array(r_c), np.array(v_c)
-    rd, vd = rc + rng.normal(0, 1e3, rc.shape), vc + rng.normal(0, 1.0, vc.shape)
-    ac = chief_acceleration(rc, vc, j2=True)
-    batch = hill_states(rc, vc, ac, rd, vd)
-    for k in range(len(rc)):
-        np.testing.assert_allclose(batch[k], rv_to_hill(rc[k], vc[k], rd[k], vd[k], ac[k]),
-                                   rtol=1e-12, atol=1e-9)  # fmt: skip
-
-
-def test_every_schema_has_a_json_schema() -> None:
-    for spec in SCHEMAS.values():
-        js = message_json_schema(spec)
-        assert js["title"] == f"ddvi.{spec.name}"
-        assert set(js["properties"]["body"]["required"]) == set(spec.fields)
-    gains = message_json_schema(SCHEMAS["gains"])["properties"]["body"]["properties"]["K"]
-    assert gains["items"]["items"] == {"type": "number"}

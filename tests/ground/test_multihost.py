@@ -15,7 +15,6 @@ import pytest
 
 from services.config import Deployment, deployment_from_table, read_table, write_deployment
 from services.ground import netns
-from services.ground.launcher import free_port
 
 pytestmark = pytest.mark.integration
 
@@ -29,13 +28,13 @@ def _why_not() -> str | None:
 
 
 @pytest.fixture
-def multihost(tmp_path: Path) -> Iterator[tuple[Deployment, Path]]:
+def multihost(tmp_path: Path, free_port: int) -> Iterator[tuple[Deployment, Path]]:
     """deployments/multihost.toml, 1 orbit, its own port and namespaces, torn down after."""
     if (why := _why_not()) is not None:
         pytest.skip(f"multi-host test skipped: {why}")
     table = read_table("multihost")
     table["run"]["orbits"] = 1.0
-    table["bus"]["port"] = free_port()
+    table["bus"]["port"] = free_port
     for h in table["host"]:
         h["netns"] = h["netns"].replace("ddvi-", "ddvit-")
     path = write_deployment(table, tmp_path, "multihost")

@@ -1,4 +1,4 @@
-"""services.interface.schema: round trips, every MessageError reason, plain-msgpack readability,
+"""services.interface.codec: round trips, every MessageError reason, plain-msgpack readability,
 fuzzing."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import services.interface.schema as schema_module
+import services.interface.codec as codec_module
 from services.interface import (
     MAX_PAYLOAD,
     REASONS,
@@ -363,8 +363,8 @@ def _same_message(a: Message, b: Message) -> bool:
 def _by_field_kinds(call: Any) -> Any:
     """``call()`` with the compiled validators switched off: what the field kinds say."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(schema_module, "_fast_decode", lambda *_: None)
-        mp.setattr(schema_module, "_COMPILED", {})
+        mp.setattr(codec_module, "_fast_decode", lambda *_: None)
+        mp.setattr(codec_module, "_COMPILED", {})
         try:
             return call()
         except MessageError as err:
@@ -375,12 +375,12 @@ def _by_field_kinds(call: Any) -> Any:
 def test_compiled_validators_take_every_sample(name: str) -> None:
     """A plain, valid message never needs the slow path, either way."""
     payload = encode(name, SAMPLES[name], seq=1, t=2.0, src="svc")
-    fast = schema_module._fast_decode(payload, name)
+    fast = codec_module._fast_decode(payload, name)
     assert fast is not None
     assert _same_message(fast, _by_field_kinds(lambda: decode(payload, name)))
     plain = {k: np.asarray(v, dtype=float) if isinstance(v, list) else v
              for k, v in SAMPLES[name].items()}  # fmt: skip
-    assert schema_module._COMPILED[name].wire(plain) is not None
+    assert codec_module._COMPILED[name].wire(plain) is not None
     assert encode(name, plain, seq=1, t=2.0, src="svc") == _by_field_kinds(
         lambda: encode(name, plain, seq=1, t=2.0, src="svc")
     )
@@ -390,7 +390,7 @@ def _assert_decode_agrees(payload: bytes, expected: Any) -> None:
     """What the compiled types accept, the field kinds accept as the same message; what they
     refuse, ``decode`` refuses with the field kinds' reason."""
     reference = _by_field_kinds(lambda: decode(payload, expected))
-    fast = schema_module._fast_decode(payload, expected)
+    fast = codec_module._fast_decode(payload, expected)
     if fast is not None:
         assert isinstance(reference, Message) and _same_message(fast, reference)
     try:
@@ -485,7 +485,7 @@ def test_compiled_encode_agrees_on_numpy_values(field: str, value: Any) -> None:
 def test_compiled_encode_takes_numpy_scalars() -> None:
     body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "altitude": np.float64(3e5),
             "valid": np.bool_(True)}  # fmt: skip
-    assert schema_module._COMPILED["nav"].wire(body) is not None
+    assert codec_module._COMPILED["nav"].wire(body) is not None
     payload = encode("nav", body, seq=1, t=2.0, src="svc")
     assert payload == _by_field_kinds(lambda: encode("nav", body, seq=1, t=2.0, src="svc"))
     assert _by_field_kinds(

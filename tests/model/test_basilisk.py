@@ -1,7 +1,7 @@
 """The Basilisk environment backend against the built-in truth: the default mission's chief
 and deputy, one orbit, same initial state and attitude commands, relative Hill position.
 
-Measured on this machine (basilisk_step = 1 s): at most 4e-7 m apart without drag (J2 on or
+Measured with basilisk_step = 1 s: at most 4e-7 m apart without drag (J2 on or
 off); 0.12 m (J2 off) and 0.16 m (J2 on) apart with drag, where drag itself moves the deputy
 36 m relative to the chief over that orbit (the drag-off run against the drag-on one).  The
 difference with drag is Basilisk's hold of density and attitude over its step, linear in the

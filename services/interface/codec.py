@@ -1,6 +1,6 @@
-"""Every message type of the system, and the only encoder/decoder of bus payloads.
+"""The codec: the only encoder/decoder of bus payloads (docs/design.md, "The bus").
 
-Wire format (DESIGN.md section 2): a msgpack map
+Wire format: a msgpack map
 
     {"schema": str, "version": int, "seq": int, "t": float, "src": str, "body": {...}}
 
@@ -17,37 +17,47 @@ sample per topic and step instead of one per message, which is what the bus pays
 Inputs/outputs:
     encode(schema, body, *, seq, t, src) -> bytes    validates, then packs
     decode(payload, expected=None) -> Message        unpacks (bounded), then validates
-    schema_for_topic(topic) -> str | None            the schema a topic carries
     pack_batch(payloads) -> bytes                    several payloads in one sample
     unpack_batch(payload) -> list[bytes] | None      a batch's payloads; None: one message
-    Both raise MessageError, whose ``reason`` is one of REASONS.
+    All raise MessageError, whose ``reason`` is one of REASONS.
 
-The schema table ``SCHEMAS`` is data: one ``Schema`` per message type, each a mapping of field
-name to a field kind (``Int``, ``Float``, ``Bool``, ``Str``, ``Array``, ``IntMap``,
-``ScalarMap``). Array fields travel as nested lists and come back from ``decode`` as float64
-numpy arrays of the declared shape (``None`` = any length). This module has no state.
+The message types are ``SCHEMAS`` (``services.interface.messages``).  Array fields travel as
+nested lists and come back from ``decode`` as float64 numpy arrays of the declared shape
+(``None`` = any length). This module has no state.
 
 Two validators, one meaning: every schema is also compiled into msgspec types (``_Compiled``),
-which check a well-formed message in C (types, lengths, finiteness) at a few microseconds; any
-payload or body they refuse goes through the field kinds below, which are the definition: they
-raise the ``MessageError`` that names what is wrong, or accept (and normalise) what the
+which check a well-formed message in C (types, lengths, finiteness); any payload or body they
+refuse goes through the field kinds (``services.interface.fields``), which are the definition:
+they raise the ``MessageError`` that names what is wrong, or accept (and normalise) what the
 compiled types are stricter about.  Either way the result is the same.
 """
 
 from __future__ import annotations
 
 import difflib
-import functools
 import math
-import numbers
 import sys
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import msgpack
 import msgspec
 import numpy as np
+
+from services.interface.fields import (
+    Array,
+    Bool,
+    Field,
+    Float,
+    Int,
+    IntMap,
+    MessageError,
+    Str,
+    is_int,
+    is_real,
+    type_name,
+)
+from services.interface.messages import HEADER_KEYS, SCHEMAS, Message, Schema
 
 MAX_PAYLOAD = 60 * 1024
 """Largest accepted payload in bytes, checked before unpacking and after packing.  Below zenoh's
@@ -55,341 +65,10 @@ MAX_PAYLOAD = 60 * 1024
 fragmented: a fragmented zenoh message can be lost whole under load (eclipse-zenoh/zenoh#1494),
 and the garbage test lost 2 of 192 oversized payloads of 64 KiB that way."""
 
-REASONS = frozenset(
-    {
-        "oversized",
-        "malformed",
-        "bad_header",
-        "unknown_schema",
-        "wrong_schema",
-        "version",
-        "bad_field",
-        "non_finite",
-    }
-)
-"""Every value ``MessageError.reason`` can take."""
-
-HEADER_KEYS = ("schema", "version", "seq", "t", "src", "body")
-
 MAX_BATCH = 64
 """Most messages in one batch; a batch's whole payload is also at most ``MAX_PAYLOAD``."""
 
-
-class MessageError(ValueError):
-    """A payload or body that does not conform to its schema.
-
-    ``reason`` is a short code from ``REASONS`` (for counters); ``str(err)`` names the schema,
-    the field, what was expected and what was found.
-    """
-
-    def __init__(self, reason: str, text: str) -> None:
-        if reason not in REASONS:
-            raise ValueError(f"unknown MessageError reason {reason!r}")
-        super().__init__(text)
-        self.reason = reason
-
-
-class Message(msgspec.Struct, frozen=True):
-    """One decoded, validated message. Array fields of ``body`` are float64 numpy arrays.
-    (An immutable msgspec struct: a bus builds one per message, at a tenth of a dataclass's
-    cost.)"""
-
-    schema: str
-    version: int
-    seq: int
-    t: float
-    src: str
-    body: dict[str, Any]
-
-
-# ---------------------------------------------------------------------------------------------
-# Field kinds. Each ``check(where, value)`` returns the normalised value (Python scalars, numpy
-# arrays) or raises MessageError; ``where`` is "schema.field" for the error text.
-
-
-def _type_name(value: object) -> str:
-    return type(value).__name__
-
-
-def _is_int(value: object) -> bool:
-    if type(value) is int:  # the common case, without the ABC machinery
-        return True
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
-
-
-def _is_real(value: object) -> bool:
-    if type(value) is float or type(value) is int:
-        return True
-    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
-
-
-@dataclass(frozen=True)
-class Int:
-    """An integer (bools are not integers here)."""
-
-    def check(self, where: str, value: object) -> int:
-        if not _is_int(value):
-            raise MessageError("bad_field", f"{where}: expected int, got {_type_name(value)}")
-        return int(value)  # type: ignore[call-overload]
-
-
-@dataclass(frozen=True)
-class Float:
-    """A finite float; ints are accepted and converted."""
-
-    def check(self, where: str, value: object) -> float:
-        if type(value) is float and math.isfinite(value):
-            return value
-        if not _is_real(value):
-            raise MessageError("bad_field", f"{where}: expected float, got {_type_name(value)}")
-        try:
-            result = float(value)  # type: ignore[arg-type]
-        except OverflowError:
-            result = math.inf
-        if not math.isfinite(result):
-            raise MessageError("non_finite", f"{where}: expected a finite float, got {result}")
-        return result
-
-
-@dataclass(frozen=True)
-class Bool:
-    """A boolean."""
-
-    def check(self, where: str, value: object) -> bool:
-        if not isinstance(value, bool | np.bool_):
-            raise MessageError("bad_field", f"{where}: expected bool, got {_type_name(value)}")
-        return bool(value)
-
-
-@dataclass(frozen=True)
-class Str:
-    """A string, optionally restricted to ``choices``."""
-
-    choices: tuple[str, ...] | None = None
-
-    def check(self, where: str, value: object) -> str:
-        if not isinstance(value, str):
-            raise MessageError("bad_field", f"{where}: expected str, got {_type_name(value)}")
-        if self.choices is not None and value not in self.choices:
-            options = "|".join(self.choices)
-            raise MessageError("bad_field", f"{where}: expected one of {options}, got {value!r}")
-        return str(value)  # a str subclass (numpy's) as a plain str
-
-
-@dataclass(frozen=True)
-class Array:
-    """A float array of the given shape; a ``None`` dimension accepts any length."""
-
-    shape: tuple[int | None, ...]
-
-    def describe(self) -> str:
-        if len(self.shape) == 1:
-            n = self.shape[0]
-            return "a list of finite floats" if n is None else f"{n} finite floats"
-        dims = "x".join("N" if d is None else str(d) for d in self.shape)
-        return f"a {dims} nested list of finite floats"
-
-    def check(self, where: str, value: object) -> np.ndarray:
-        if len(self.shape) == 1:
-            # fast paths for what the bus carries (a list of floats off the wire, a float64
-            # vector from a service); anything else takes the general path and its messages
-            n = self.shape[0]
-            if (
-                type(value) is list
-                and (n is None or len(value) == n)
-                and all(type(v) is float and math.isfinite(v) for v in value)
-            ):
-                return np.array(value, dtype=np.float64)
-            if (
-                type(value) is np.ndarray
-                and value.dtype == np.float64
-                and value.ndim == 1
-                and (n is None or value.shape[0] == n)
-                and np.isfinite(value).all()
-            ):
-                return value
-        expected = f"{where}: expected {self.describe()}"
-        if not isinstance(value, list | tuple | np.ndarray):
-            raise MessageError("bad_field", f"{expected}, got {_type_name(value)}")
-        try:
-            arr = np.asarray(value)
-        except (ValueError, TypeError, OverflowError) as exc:
-            raise MessageError("bad_field", f"{expected}, got a ragged or mixed list") from exc
-        if arr.size == 0 and arr.ndim == 1 and len(self.shape) > 1:
-            # An empty nested list carries no inner dimensions: rebuild them from the spec.
-            arr = np.empty((0, *(d or 0 for d in self.shape[1:])))
-        if arr.dtype.kind not in "fiu":
-            raise MessageError("bad_field", f"{expected}, got elements of type {arr.dtype}")
-        if len(self.shape) == 1 and arr.ndim == 1 and self.shape[0] is not None:
-            if arr.shape[0] != self.shape[0]:
-                raise MessageError("bad_field", f"{expected}, got {arr.shape[0]}")
-        elif arr.ndim != len(self.shape) or any(
-            d is not None and d != n for d, n in zip(self.shape, arr.shape, strict=True)
-        ):
-            raise MessageError("bad_field", f"{expected}, got shape {arr.shape}")
-        out = arr.astype(np.float64)
-        if not np.all(np.isfinite(out)):
-            bad = np.argwhere(~np.isfinite(out))[0]
-            index = tuple(int(i) for i in bad)
-            shown = index[0] if len(index) == 1 else index
-            raise MessageError("non_finite", f"{expected}, got {out[index]} at index {shown}")
-        return out
-
-
-@dataclass(frozen=True)
-class IntMap:
-    """A map of string keys to ints (counters)."""
-
-    def check(self, where: str, value: object) -> dict[str, int]:
-        if not isinstance(value, Mapping):
-            raise MessageError(
-                "bad_field", f"{where}: expected map str->int, got {_type_name(value)}"
-            )
-        out: dict[str, int] = {}
-        for key, item in value.items():
-            if not isinstance(key, str):
-                raise MessageError(
-                    "bad_field", f"{where}: expected str keys, got {_type_name(key)}"
-                )
-            out[str(key)] = Int().check(f"{where}[{key!r}]", item)
-        return out
-
-
-@dataclass(frozen=True)
-class ScalarMap:
-    """A map of string keys to scalars: float (finite), int, str or bool."""
-
-    def check(self, where: str, value: object) -> dict[str, float | int | str | bool]:
-        if not isinstance(value, Mapping):
-            raise MessageError("bad_field", f"{where}: expected map, got {_type_name(value)}")
-        out: dict[str, float | int | str | bool] = {}
-        for key, item in value.items():
-            if not isinstance(key, str):
-                raise MessageError(
-                    "bad_field", f"{where}: expected str keys, got {_type_name(key)}"
-                )
-            inner = f"{where}[{key!r}]"
-            key = str(key)
-            if isinstance(item, bool | np.bool_):
-                out[key] = bool(item)
-            elif _is_int(item):
-                out[key] = int(item)  # type: ignore[call-overload]
-            elif isinstance(item, str):
-                out[key] = str(item)
-            elif _is_real(item):
-                out[key] = Float().check(inner, item)
-            else:
-                raise MessageError(
-                    "bad_field", f"{inner}: expected float|int|str|bool, got {_type_name(item)}"
-                )
-        return out
-
-
-Field = Int | Float | Bool | Str | Array | IntMap | ScalarMap
-
-
-@dataclass(frozen=True)
-class Schema:
-    """One message type: its name, version and body fields (all required, no extras)."""
-
-    name: str
-    version: int
-    fields: Mapping[str, Field]
-
-
-def _schemas(*items: Schema) -> dict[str, Schema]:
-    return {s.name: s for s in items}
-
-
-SCHEMAS: Mapping[str, Schema] = _schemas(
-    Schema(
-        "clock",
-        1,
-        {
-            "step": Int(),
-            "dt": Float(),
-            "fsw": Bool(),
-            "mode": Str(("lockstep", "realtime")),
-            "final": Bool(),
-        },
-    ),
-    Schema(
-        "truth",
-        1,
-        {"sc": Str(), "r_N": Array((3,)), "v_N": Array((3,)), "sigma_BN": Array((3,))},
-    ),
-    Schema("exo", 1, {"v": Array((None,)), "phase": Float()}),
-    # altitude: the deputy's own, from its absolute navigation (m above R_E)
-    Schema("nav", 1, {"sc": Str(), "x_hill": Array((6,)), "altitude": Float(), "valid": Bool()}),
-    Schema("cmd", 1, {"sc": Str(), "sigma": Array((3,)), "for_t": Float()}),
-    Schema(
-        "gains",
-        1,
-        {
-            "sc": Str(),
-            "K": Array((None, None)),
-            "L": Array((None, None)),
-            "source": Str(("initial", "lqr", "ddvi", "fallback")),
-            "iteration": Int(),
-            "converged": Bool(),
-        },
-    ),
-    Schema(
-        "status",
-        1,
-        {
-            "sc": Str(),
-            "mode": Str(),
-            "phase": Str(),
-            "samples": Int(),
-            "intervals": Int(),
-            "rank": Int(),
-            "rank_needed": Int(),
-            "counters": IntMap(),
-        },
-    ),
-    Schema("fault", 1, {"kind": Str(), "target": Str(), "params": ScalarMap()}),
-    Schema("stats", 1, {"service": Str(), "counters": IntMap()}),
-    Schema("log", 1, {"service": Str(), "level": Str(), "text": Str()}),
-)
-"""Every message type of the system, by name."""
-
-TOPIC_SCHEMAS: tuple[tuple[str, str], ...] = (
-    ("clock", "clock"),
-    ("exo/state", "exo"),
-    ("truth/*", "truth"),
-    ("nav/*/state", "nav"),
-    ("cmd/*/att", "cmd"),
-    ("ctrl/*/gains", "gains"),
-    ("ctrl/*/status", "status"),
-    ("fault/**", "fault"),
-    ("stats/*", "stats"),
-    ("log/*", "log"),
-)
-"""Which schema each topic (below ``ddvi/<run>/``) carries (DESIGN.md section 2): ``*`` is one
-key chunk, ``**`` the rest of the key."""
-
-
-@functools.lru_cache(maxsize=4096)  # a run has a few dozen topics; garbage may add more
-def schema_for_topic(topic: str) -> str | None:
-    """The schema a topic carries (``TOPIC_SCHEMAS``), None for a topic outside the table."""
-    chunks = topic.split("/")
-    for pattern, schema in TOPIC_SCHEMAS:
-        want = pattern.split("/")
-        if want[-1] == "**":  # the rest of the key, at least one chunk
-            want, chunks_ = want[:-1], chunks[: len(want) - 1]
-            if len(chunks) < len(want) + 1:
-                continue
-        else:
-            chunks_ = chunks
-        if len(want) == len(chunks_) and all(
-            w in ("*", c) for w, c in zip(want, chunks_, strict=True)
-        ):
-            return schema
-    return None
-
-
-# ---------------------------------------------------------------------------------------------
+_HEADER_T = Float()  # the check of header.t
 
 
 def _lookup(name: object) -> Schema:
@@ -404,7 +83,7 @@ def check_body(schema: str, body: Mapping[str, Any]) -> dict[str, Any]:
     """Validate ``body`` against ``schema``; return it normalised (arrays as float64 ndarrays)."""
     spec = _lookup(schema)
     if not isinstance(body, Mapping):
-        raise MessageError("bad_field", f"{schema}: expected body map, got {_type_name(body)}")
+        raise MessageError("bad_field", f"{schema}: expected body map, got {type_name(body)}")
     for key in body:
         if key not in spec.fields:
             near = difflib.get_close_matches(str(key), list(spec.fields), n=1)
@@ -423,11 +102,11 @@ def _to_wire(value: Any) -> Any:
 
 
 def _check_header(schema: str, seq: object, t: object, src: object) -> tuple[int, float, str]:
-    if not _is_int(seq) or int(seq) < 0:  # type: ignore[call-overload]
+    if not is_int(seq) or int(seq) < 0:  # type: ignore[call-overload]
         raise MessageError("bad_header", f"{schema} header.seq: expected int >= 0, got {seq!r}")
-    if not _is_real(t):
-        raise MessageError("bad_header", f"{schema} header.t: expected float, got {_type_name(t)}")
-    t_f = Float().check(f"{schema} header.t", t)
+    if not is_real(t):
+        raise MessageError("bad_header", f"{schema} header.t: expected float, got {type_name(t)}")
+    t_f = _HEADER_T.check(f"{schema} header.t", t)
     if not isinstance(src, str) or not src:
         raise MessageError(
             "bad_header", f"{schema} header.src: expected non-empty str, got {src!r}"
@@ -500,7 +179,7 @@ def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Mes
         max_array_len=size, max_map_len=size,
     )  # fmt: skip
     if not isinstance(raw, dict):
-        raise MessageError("malformed", f"expected a msgpack map, got {_type_name(raw)}")
+        raise MessageError("malformed", f"expected a msgpack map, got {type_name(raw)}")
     keys = set(raw)
     if keys != set(HEADER_KEYS):
         missing = sorted(set(HEADER_KEYS) - keys)
@@ -508,7 +187,7 @@ def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Mes
         raise MessageError("bad_header", f"header: missing {missing}, unexpected {extra}")
     name = raw["schema"]
     if not isinstance(name, str):
-        raise MessageError("bad_header", f"header.schema: expected str, got {_type_name(name)}")
+        raise MessageError("bad_header", f"header.schema: expected str, got {type_name(name)}")
     spec = _lookup(name)
     if expected is not None:
         allowed = {expected} if isinstance(expected, str) else set(expected)
@@ -517,18 +196,16 @@ def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Mes
                 "wrong_schema", f"expected schema {'|'.join(sorted(allowed))}, got {name!r}"
             )
     version = raw["version"]
-    if not _is_int(version):
+    if not is_int(version):
         raise MessageError(
-            "bad_header", f"{name} header.version: expected int, got {_type_name(version)}"
+            "bad_header", f"{name} header.version: expected int, got {type_name(version)}"
         )
     if version != spec.version:
         raise MessageError("version", f"{name}: expected version {spec.version}, got {version}")
     seq, t, src = _check_header(name, raw["seq"], raw["t"], raw["src"])
     body = raw["body"]
     if not isinstance(body, dict):
-        raise MessageError(
-            "bad_header", f"{name} header.body: expected map, got {_type_name(body)}"
-        )
+        raise MessageError("bad_header", f"{name} header.body: expected map, got {type_name(body)}")
     return Message(name, version, seq, t, src, check_body(name, body))
 
 

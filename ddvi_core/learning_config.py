@@ -1,0 +1,179 @@
+"""How a data-driven learner explores, iterates and is scheduled: one configuration for a
+system file's ``[learning]`` table and a deputy's ``learning`` table in a deployment.
+
+Kept apart from :mod:`ddvi_core.systems` so that reading a deployment needs numpy alone (the
+value iteration's step and bound rules, which need scipy, are imported when asked for).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ddvi_core.tables import FlatRowMatrix
+
+if TYPE_CHECKING:
+    from ddvi_core.problem import RegulationProblem
+    from ddvi_core.value_iteration import BoundSchedule, StepSequence
+
+__all__ = [
+    "FLIGHT_SCHEDULE_KEYS",
+    "SYSTEM_FILE_LEARNING_KEYS",
+    "LearningConfig",
+    "SystemFileError",
+]
+
+
+class SystemFileError(ValueError):
+    """A system file or name that cannot be used; the message names the key."""
+
+
+@dataclass(frozen=True)
+class LearningConfig:
+    """How the data-driven learner explores and iterates (all SI units, seconds, rad/s).
+
+    interval: seconds per data interval; intervals: how many to collect;
+    sample_period: navigation sample period; command_period: flight-software period (the input
+    is held over it); exploration_amplitude / exploration_frequencies: the multi-sine
+    exploration; x0, v0: initial state and exostate; K0: initial gain, m rows of n (zero by
+    default, need not stabilise; a single row may be written flat); seed: exploration phases;
+    time_unit: the iteration's time unit (1/s; by default A's fastest rate / 100); step /
+    step_size: 'harmonic' (step_size / k) or 'constant' (step_size in units of time_unit);
+    bounds / bound_base: 'linear' base (r+1) or 'geometric' base 2^r; state_scale: the states'
+    units in the iteration; input_limit: actuator saturation; tol, max_iterations: the
+    stopping rule.
+
+    The flight software's schedule (:data:`FLIGHT_SCHEDULE_KEYS`, read from a deployment's
+    ``deputy.learning`` table, never from a system file; in chief orbits): learn_at_orbits:
+    when to learn and switch gains; retry_orbits: after a failed attempt, explore on and try
+    again this much later; window_orbits: learn from the last this many orbits of data (0: all
+    of it); along_track_reference: the data's reference state about its mean along-track
+    position; relearn: after learning, watch the plant for a change (an actuator fault) and
+    learn again; relearn_settle_orbits: after a detection, K0 stops the approach (not data);
+    relearn_window_orbits: then explore this long and re-learn from it;
+    relearn_max_attempts: re-learning attempts that fail before the old gains return;
+    detector_bound: the detection threshold, times the input-equivalent residual's RMS on the
+    learning data; detector_window_orbits: the residual's mean is taken over this window.
+    """
+
+    interval: float = 600.0
+    intervals: int = 200
+    sample_period: float = 10.0
+    command_period: float = 60.0
+    exploration_amplitude: float = 1.0
+    exploration_frequencies: tuple[float, ...] = ()
+    x0: tuple[float, ...] | None = None
+    v0: tuple[float, ...] | None = None
+    K0: FlatRowMatrix | None = None
+    seed: int = 0
+    time_unit: float | None = None
+    step: str = "harmonic"
+    step_size: float = 1.0
+    bounds: str = "linear"
+    bound_base: float = 10.0
+    state_scale: tuple[float, ...] | None = None
+    input_limit: float | None = None
+    tol: float = 1e-6
+    max_iterations: int = 200_000
+    # the flight software's schedule (FLIGHT_SCHEDULE_KEYS)
+    learn_at_orbits: float = 15.0
+    retry_orbits: float = 1.0
+    window_orbits: float = 0.0
+    along_track_reference: bool = True
+    relearn: bool = False
+    relearn_settle_orbits: float = 2.0
+    relearn_window_orbits: float = 10.0
+    relearn_max_attempts: int = 5
+    detector_bound: float = 100.0
+    detector_window_orbits: float = 1.0
+
+    def steps(self) -> StepSequence:
+        from ddvi_core.value_iteration import StepSequence
+
+        return StepSequence(self.step, self.step_size)
+
+    def bound_schedule(self) -> BoundSchedule:
+        from ddvi_core.value_iteration import BoundSchedule
+
+        return BoundSchedule(self.bounds, self.bound_base)
+
+    def validate(self, problem: RegulationProblem) -> None:
+        def bad(key: str, why: str) -> SystemFileError:
+            return SystemFileError(f"learning.{key}: {why}")
+
+        for key in (
+            "interval",
+            "sample_period",
+            "command_period",
+            "step_size",
+            "bound_base",
+            "tol",
+        ):
+            val = getattr(self, key)
+            if not (isinstance(val, int | float) and math.isfinite(val) and val > 0):
+                raise bad(key, f"must be a positive number, got {val!r}")
+        if self.interval < self.sample_period:
+            raise bad("interval", "must be at least one sample_period")
+        ratio = self.command_period / self.sample_period
+        if abs(ratio - round(ratio)) > 1e-9:
+            raise bad("command_period", "must be a whole multiple of sample_period")
+        for key in ("intervals", "max_iterations"):
+            if not (isinstance(getattr(self, key), int) and getattr(self, key) > 0):
+                raise bad(key, f"must be a positive integer, got {getattr(self, key)!r}")
+        if not (math.isfinite(self.exploration_amplitude) and self.exploration_amplitude >= 0):
+            raise bad("exploration_amplitude", "must be a non-negative number")
+        if any(not (math.isfinite(w) and w > 0) for w in self.exploration_frequencies):
+            raise bad("exploration_frequencies", "must be positive numbers (rad/s)")
+        if self.time_unit is not None and not (
+            math.isfinite(self.time_unit) and self.time_unit > 0
+        ):
+            raise bad("time_unit", "must be a positive rate in 1/s")
+        if self.step not in ("harmonic", "constant"):
+            raise bad("step", f"must be 'harmonic' or 'constant', got {self.step!r}")
+        if self.bounds not in ("linear", "geometric"):
+            raise bad("bounds", f"must be 'linear' or 'geometric', got {self.bounds!r}")
+        sizes = {"x0": problem.n, "v0": problem.q, "state_scale": problem.n}
+        for key, size in sizes.items():
+            val = getattr(self, key)
+            if val is not None and len(val) != size:
+                raise bad(key, f"expected {size} values, got {len(val)}")
+        if self.state_scale is not None and any(s <= 0 for s in self.state_scale):
+            raise bad("state_scale", "must be positive")
+        if self.K0 is not None:
+            K0 = np.asarray(self.K0, dtype=float)
+            if K0.shape != (problem.m, problem.n):
+                raise bad(
+                    "K0",
+                    f"expected shape {problem.m}x{problem.n}, got {'x'.join(map(str, K0.shape))}",
+                )
+        if self.input_limit is not None and not self.input_limit > 0:
+            raise bad("input_limit", "must be positive")
+
+    def K0_matrix(self, problem: RegulationProblem) -> NDArray[np.float64]:
+        if self.K0 is None:
+            return np.zeros((problem.m, problem.n))
+        return np.asarray(self.K0, dtype=float)
+
+
+FLIGHT_SCHEDULE_KEYS = (
+    "learn_at_orbits",
+    "retry_orbits",
+    "window_orbits",
+    "along_track_reference",
+    "relearn",
+    "relearn_settle_orbits",
+    "relearn_window_orbits",
+    "relearn_max_attempts",
+    "detector_bound",
+    "detector_window_orbits",
+)
+"""The LearningConfig fields only the flight software reads (a deployment's learning table)."""
+
+SYSTEM_FILE_LEARNING_KEYS = tuple(
+    f.name for f in fields(LearningConfig) if f.name not in FLIGHT_SCHEDULE_KEYS
+)
+"""The keys a system file's [learning] table may give."""

@@ -1,0 +1,68 @@
+"""Liveliness: which services are up. A ``Bus`` declares its service's token
+``ddvi/<run>/alive/<service>`` (``services.interface.topics.alive_topic``); the functions here
+watch those tokens come and go."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Iterable
+from fnmatch import fnmatchcase
+from typing import Any
+
+import zenoh
+
+from services.bus.session import key_prefix
+from services.interface.topics import alive_topic
+
+log = logging.getLogger("ddvi.bus")
+
+
+def watch_alive(
+    session: zenoh.Session, run: str, pattern: str, on_change: Callable[[str, bool], None]
+) -> Any:
+    """Call ``on_change(service, alive)`` for every service matching ``pattern`` (a shell-style
+    glob, ``ctrl-*``) whose liveliness token is there now or comes and goes later.  Returns the
+    zenoh subscriber: undeclare it when done.  ``on_change`` runs on a zenoh thread and must
+    not raise."""
+    # a service name is one key chunk, so zenoh's '*' hears every token and the last chunk of
+    # a token's key is its service
+    key = key_prefix(run) + alive_topic("*")
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        try:
+            name = str(sample.key_expr).rsplit("/", 1)[-1]
+            if fnmatchcase(name, pattern):  # zenoh's own '*' is a whole chunk only
+                on_change(name, sample.kind == zenoh.SampleKind.PUT)
+        except Exception:
+            log.exception("liveliness callback failed")
+
+    return session.liveliness().declare_subscriber(key, on_sample, history=True)
+
+
+def wait_for_alive(
+    session: zenoh.Session, run: str, services: Iterable[str], timeout: float
+) -> set[str]:
+    """Wait until every named service's liveliness token is seen or ``timeout`` s pass.
+
+    Returns the subset of ``services`` alive at return time.
+    """
+    wanted = set(services)
+    alive: set[str] = set()
+    changed = threading.Condition()
+
+    def on_change(name: str, up: bool) -> None:
+        with changed:
+            if up:
+                alive.add(name)
+            else:
+                alive.discard(name)
+            changed.notify_all()
+
+    subscriber = watch_alive(session, run, "*", on_change)
+    try:
+        with changed:
+            changed.wait_for(lambda: wanted <= alive, timeout)
+            return wanted & alive
+    finally:
+        subscriber.undeclare()

@@ -1,0 +1,100 @@
+"""Deployment files: finding one by name or path, reading, writing and loading it.
+
+Named deployments live in the repository's ``deployments/`` folder; an installed package
+carries the same files (the wheel's data files, ``<prefix>/share/ddvi-fsw/deployments``), so
+``ddvi run`` finds them without a source checkout.  :func:`resolve` looks in the source tree
+first, then in the installed location.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import sysconfig
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from services.config.deployment import Deployment, DeploymentError
+from services.config.validation import deployment_from_table
+
+__all__ = [
+    "DEPLOYMENTS_DIR",
+    "deployment_dirs",
+    "load_deployment",
+    "read_table",
+    "resolve",
+    "write_deployment",
+]
+
+DEFAULT_DEPLOYMENT = "rendezvous"
+
+DEPLOYMENTS_DIR = Path(__file__).resolve().parents[2] / "deployments"
+"""The source tree's deployments/ folder (present in a checkout or an editable install)."""
+
+INSTALLED_SUBDIR = Path("share", "ddvi-fsw", "deployments")
+"""Where an installed package's data files put the named deployments, under a scheme's data
+directory (pyproject.toml, ``[tool.setuptools.data-files]``)."""
+
+
+def deployment_dirs() -> list[Path]:
+    """The folders that hold named deployments, in search order: the source tree's, then the
+    installed package's (the interpreter's prefix, then the user scheme); only those that
+    exist."""
+    candidates = [DEPLOYMENTS_DIR]
+    for scheme in (sysconfig.get_default_scheme(), sysconfig.get_preferred_scheme("user")):
+        candidates.append(Path(sysconfig.get_path("data", scheme)) / INSTALLED_SUBDIR)
+    found: list[Path] = []
+    for folder in candidates:
+        if folder.is_dir() and folder.resolve() not in found:
+            found.append(folder.resolve())
+    return found
+
+
+def resolve(name_or_path: str | None) -> Path:
+    """A deployment file by path, or by name (``rendezvous`` when None) in the first of
+    :func:`deployment_dirs` that has it."""
+    if name_or_path is None:
+        name_or_path = DEFAULT_DEPLOYMENT
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    folders = deployment_dirs()
+    for folder in folders:
+        q = folder / f"{name_or_path}.toml"
+        if q.is_file():
+            return q
+    known = sorted({x.stem for folder in folders for x in folder.glob("*.toml")})
+    near = difflib.get_close_matches(name_or_path, known, n=1)
+    hint = f" (did you mean '{near[0]}'?)" if near else ""
+    raise DeploymentError(
+        f"{name_or_path}: no such deployment file or name{hint}; known: " + ", ".join(known)
+    )
+
+
+def read_table(name_or_path: str | None) -> dict[str, Any]:
+    """A deployment file's raw TOML table (to derive another deployment from it)."""
+    return tomllib.loads(resolve(name_or_path).read_text())
+
+
+def write_deployment(table: dict[str, Any], folder: Path, name: str) -> Path:
+    """Write a deployment table to ``folder/name.toml``, its runs going under ``folder/runs``
+    (benchmarks and sweeps derive their deployments this way)."""
+    import tomli_w
+
+    table = copy.deepcopy(table)
+    table.setdefault("run", {})["output"] = str(folder / "runs")
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    path.write_bytes(tomli_w.dumps(table).encode())
+    return path
+
+
+def load_deployment(name_or_path: str | None) -> Deployment:
+    """The checked Deployment of a file by name or path (see :func:`resolve`)."""
+    path = resolve(name_or_path)
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise DeploymentError(f"{path}: not valid TOML ({exc})") from None
+    return deployment_from_table(table, str(path))

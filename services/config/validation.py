@@ -1,0 +1,335 @@
+"""The deployment's semantic checks, and :func:`deployment_from_table` (read, then check).
+
+The table reader (``ddvi_core.tables``) checks keys, types and shapes; the checks here are what
+a deployment must also satisfy to be run: values in range, periods that divide one another,
+names that exist.  :data:`CHECKS` runs them in order; each raises DeploymentError naming the key.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import fields, replace
+from fnmatch import fnmatchcase
+from typing import Any
+
+from ddvi_core.relnav import FRAMES
+from ddvi_core.tables import from_table
+from services.bus import impairs_truth
+from services.config.deployment import (
+    FAULT_KINDS,
+    RESTART_POLICIES,
+    Deployment,
+    DeploymentError,
+    Deputy,
+    Fault,
+)
+
+__all__ = ["CHECKS", "check_panel", "deployment_from_table", "validate"]
+
+DEPLOYMENT_KEYS = tuple(f.name for f in fields(Deployment) if f.name != "path")
+"""The top-level keys of a deployment file (``path`` is where it was read from)."""
+
+
+def _positive(where: str, value: float) -> None:
+    if not value > 0:
+        raise DeploymentError(f"{where}: must be positive, got {value}")
+
+
+def _multiple(where: str, value: float, base: float, base_name: str) -> None:
+    ratio = value / base
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise DeploymentError(
+            f"{where}: must be a whole multiple of {base_name} ({base} s), got {value}"
+        )
+
+
+def _one_of(where: str, value: str, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        quoted = " or ".join(repr(a) for a in allowed)
+        raise DeploymentError(f"{where}: expected {quoted}, got {value!r}")
+
+
+def check_run(dep: Deployment) -> None:
+    """run: positive times, a known mode, the command period a multiple of the nav period."""
+    r = dep.run
+    for key in ("orbits", "nav_period", "fsw_period", "rate", "command_deadline"):
+        _positive(f"run.{key}", getattr(r, key))
+    _positive("run.startup_timeout", r.startup_timeout)
+    _one_of("run.mode", r.mode, ("lockstep", "realtime"))
+    _multiple("run.fsw_period", r.fsw_period, r.nav_period, "run.nav_period")
+
+
+def check_bus(dep: Deployment) -> None:
+    """bus: a known mode and a port number."""
+    _one_of("bus.mode", dep.bus.mode, ("peer", "client"))
+    if not 0 <= dep.bus.port < 65536:
+        raise DeploymentError(f"bus.port: expected 0..65535, got {dep.bus.port}")
+
+
+def check_environment(dep: Deployment) -> None:
+    """environment: a known backend, positive factors and steps (Basilisk's step dividing the
+    nav period)."""
+    env = dep.environment
+    _one_of("environment.backend", env.backend, ("builtin", "basilisk"))
+    for key in ("density_factor", "max_step", "basilisk_step"):
+        _positive(f"environment.{key}", getattr(env, key))
+    if env.backend == "basilisk":
+        _multiple("run.nav_period", dep.run.nav_period, env.basilisk_step,
+                  "environment.basilisk_step")  # fmt: skip
+
+
+def check_bodies(dep: Deployment) -> None:
+    """spacecraft, atmosphere and chief: positive sizes, an elliptic chief orbit."""
+    for key in ("mass", "area", "cd"):
+        _positive(f"spacecraft.{key}", getattr(dep.spacecraft, key))
+    for key in ("rho0", "scale_height"):
+        _positive(f"atmosphere.{key}", getattr(dep.atmosphere, key))
+    _positive("chief.a", dep.chief.a)
+    if not 0 <= dep.chief.e < 1:
+        raise DeploymentError(f"chief.e: expected 0 <= e < 1, got {dep.chief.e}")
+
+
+def _check_deputy_craft(w: str, d: Deputy) -> None:
+    """A deputy's controller, orbit, panel and attitude limit."""
+    if d.controller not in ("lqr", "ddvi"):
+        raise DeploymentError(f"{w}.controller: expected 'lqr' or 'ddvi', got {d.controller!r}")
+    _positive(f"{w}.orbit.a", d.orbit.a)
+    _positive(f"{w}.area_factor", d.area_factor)
+    if not 0 < d.attitude_limit <= 1:
+        raise DeploymentError(f"{w}.attitude_limit: expected 0 < limit <= 1 (MRP)")
+
+
+def _check_deputy_navigation(w: str, d: Deputy, dep: Deployment) -> None:
+    """A deputy's navigation period (between run.nav_period and run.fsw_period, dividing
+    both), noise, frame and biases."""
+    nav, r = d.navigation, dep.run
+    _multiple(f"{w}.navigation.period", nav.period, r.nav_period, "run.nav_period")
+    _multiple("run.fsw_period", r.fsw_period, nav.period, f"{w}.navigation.period")
+    for key in ("position_noise", "velocity_noise"):
+        if getattr(nav, key) < 0:
+            raise DeploymentError(f"{w}.navigation.{key}: must be >= 0")
+    if nav.frame not in FRAMES:
+        raise DeploymentError(f"{w}.navigation.frame: {nav.frame!r} is not one of {list(FRAMES)}")
+    for key in ("position_bias", "velocity_bias"):
+        if len(getattr(nav, key)) != 3:
+            raise DeploymentError(f"{w}.navigation.{key}: expected 3 values")
+
+
+def _check_deputy_learning(w: str, d: Deputy) -> None:
+    """A deputy's learning schedule, exploration, initial gain and iteration."""
+    lrn, where = d.learning, f"{w}.learning"
+    _positive(f"{where}.learn_at_orbits", lrn.learn_at_orbits)
+    _multiple(f"{where}.interval", lrn.interval, d.navigation.period, f"{w}.navigation.period")
+    if not 0 <= lrn.exploration_amplitude <= d.attitude_limit:
+        raise DeploymentError(
+            f"{where}.exploration_amplitude: must lie in [0, attitude_limit = {d.attitude_limit}]"
+        )
+    if not (math.isfinite(lrn.window_orbits) and lrn.window_orbits >= 0):
+        raise DeploymentError(f"{where}.window_orbits: must be >= 0 (0 = all data)")
+    for key in ("relearn_window_orbits", "detector_bound", "detector_window_orbits"):
+        _positive(f"{where}.{key}", getattr(lrn, key))
+    if lrn.relearn_settle_orbits < 0:
+        raise DeploymentError(f"{where}.relearn_settle_orbits: must be >= 0")
+    if lrn.relearn_max_attempts < 1:
+        raise DeploymentError(f"{where}.relearn_max_attempts: must be >= 1")
+    if lrn.K0 is None or len(lrn.K0) != 1 or len(lrn.K0[0]) != 4:
+        raise DeploymentError(f"{where}.K0: expected 4 values (gain on x, y, xdot, ydot)")
+    if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):
+        raise DeploymentError(
+            f"{where}.step/bounds: expected step 'harmonic' or "
+            "'constant' and bounds 'linear' or 'geometric'"
+        )
+
+
+def check_deputies(dep: Deployment) -> None:
+    """At least one deputy; each with a unique name, and its craft, navigation and learning
+    in range."""
+    if not dep.deputy:
+        raise DeploymentError("deputy: at least one [[deputy]] table is required")
+    seen = set()
+    for k, d in enumerate(dep.deputy):
+        w = f"deputy[{k}]"
+        if not d.name or not d.name.replace("_", "").isalnum() or d.name == "chief":
+            raise DeploymentError(
+                f"{w}.name: expected a name of letters, digits and _, "
+                f"other than 'chief', got {d.name!r}"
+            )
+        if d.name in seen:
+            raise DeploymentError(f"{w}.name: {d.name!r} is used twice")
+        seen.add(d.name)
+        _check_deputy_craft(w, d)
+        _check_deputy_navigation(w, d, dep)
+        _check_deputy_learning(w, d)
+
+
+def _matches_a_service(where: str, pattern: str, services: list[str]) -> list[str]:
+    """The services a glob names; none raises DeploymentError at ``where``."""
+    matched = [s for s in services if fnmatchcase(s, pattern)]
+    if not matched:
+        raise DeploymentError(
+            f"{where}: {pattern!r} matches no service; services: {', '.join(services)}"
+        )
+    return matched
+
+
+def check_links(dep: Deployment) -> None:
+    """[[link]]: globs that name services; never the truth to navigation, nor the monitor.
+    (The link parameters are checked when the table is read: LinkSpec's own checks.)"""
+    services = dep.services
+    for k, link in enumerate(dep.link):
+        w = f"link[{k}]"
+        for key in ("publisher", "subscriber"):
+            _matches_a_service(f"{w}.{key}", getattr(link, key), services)
+        if any(
+            impairs_truth(link.publisher, s) for s in services if fnmatchcase(s, link.subscriber)
+        ):
+            raise DeploymentError(
+                f"{w}: impairs the environment's truth to navigation "
+                f"({link.publisher!r} -> {link.subscriber!r}); impair navigation -> controller "
+                '(publisher = "nav-*") or the commands (topic = "cmd/*/att") instead'
+            )
+        if link.subscriber == "monitor":
+            raise DeploymentError(
+                f"{w}.subscriber: the monitor records what is published, unimpaired; impair "
+                "the links between flight services"
+            )
+
+
+def check_restarts(dep: Deployment) -> None:
+    """[[restart]]: a known policy, a count, a glob naming services other than the environment
+    and the monitor."""
+    for k, r in enumerate(dep.restart):
+        w = f"restart[{k}]"
+        if r.policy not in RESTART_POLICIES:
+            raise DeploymentError(
+                f"{w}.policy: expected one of {', '.join(RESTART_POLICIES)}, got {r.policy!r}"
+            )
+        if r.max_restarts < 0:
+            raise DeploymentError(f"{w}.max_restarts: must be >= 0, got {r.max_restarts}")
+        matched = _matches_a_service(f"{w}.service", r.service, dep.services)
+        if r.policy != "never" and (fixed := {"environment", "monitor"} & set(matched)):
+            raise DeploymentError(
+                f"{w}.service: {r.service!r} would restart {', '.join(sorted(fixed))}: the "
+                "environment is the truth and the time master, the monitor the one recording "
+                'of the run; neither can be restarted into it (use service = "ctrl-*" or '
+                '"nav-*")'
+            )
+
+
+def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
+    """Raise ValueError unless a panel fault's values are numbers in range (area_factor finite
+    and > 0, normal_angle in (0, 90) deg), at least one of them given: the one check of the
+    deployment file, ``ddvi fault`` and the environment's run-time fault messages."""
+    if area_factor is None and normal_angle is None:
+        raise ValueError("a panel fault changes area_factor, normal_angle or both: give one")
+    for value in (area_factor, normal_angle):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
+            raise ValueError(
+                f"area_factor and normal_angle are numbers, got {value!r} ({type(value).__name__})"
+            )
+    if area_factor is not None and not (math.isfinite(area_factor) and area_factor > 0):
+        raise ValueError(f"area_factor must be finite and > 0, got {area_factor}")
+    if normal_angle is not None and not (0 < normal_angle < 90):
+        raise ValueError(
+            f"normal_angle must lie in (0, 90) deg (the facet normal in the body x-y plane), "
+            f"got {normal_angle}"
+        )
+
+
+def _check_fault_values(w: str, f: Fault, backend: str) -> None:
+    """One fault's kind-specific values: a panel's area or angle (built-in truth only), the
+    biases."""
+    if f.kind == "panel":
+        try:
+            check_panel(f.area_factor, f.normal_angle)
+        except ValueError as exc:
+            raise DeploymentError(f"{w}: {exc}") from None
+    elif f.area_factor is not None or f.normal_angle is not None:
+        raise DeploymentError(
+            f"{w}: area_factor and normal_angle belong to panel faults, not {f.kind!r}"
+        )
+    for key in ("position_bias", "velocity_bias"):
+        values = getattr(f, key)
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise DeploymentError(f"{w}.{key}: expected 3 finite values")
+    if f.kind == "panel" and backend == "basilisk":
+        raise DeploymentError(
+            f"{w}: panel faults need the built-in truth (Basilisk 2.12's "
+            "facetDragDynamicEffector cannot change a facet's area or normal once added)"
+        )
+
+
+def check_faults(dep: Deployment) -> None:
+    """[[fault]]: a known kind, an existing deputy, a time within the run, values in range."""
+    names = [d.name for d in dep.deputy]
+    for k, f in enumerate(dep.fault):
+        w = f"fault[{k}]"
+        if f.kind not in FAULT_KINDS:
+            raise DeploymentError(
+                f"{w}.kind: expected one of {', '.join(FAULT_KINDS)}, got {f.kind!r}"
+            )
+        if f.deputy not in names:
+            raise DeploymentError(f"{w}.deputy: {f.deputy!r} is not one of {', '.join(names)}")
+        if not (math.isfinite(f.at_orbits) and 0 <= f.at_orbits < dep.run.orbits):
+            raise DeploymentError(
+                f"{w}.at_orbits: must lie in [0, run.orbits = {dep.run.orbits:g}), "
+                f"got {f.at_orbits}"
+            )
+        _check_fault_values(w, f, dep.environment.backend)
+
+
+def check_hosts(dep: Deployment) -> None:
+    """[[host]]: a client bus on a fixed port; unique namespace names that fit a veth pair's;
+    globs naming services other than the monitor."""
+    if not dep.host:
+        return
+    if dep.bus.mode != "client" or dep.bus.port == 0:
+        raise DeploymentError(
+            "host: services on other hosts reach the hub through a router: set bus.mode = "
+            '"client" and a fixed bus.port'
+        )
+    seen = set()
+    for k, h in enumerate(dep.host):
+        w = f"host[{k}]"
+        if not h.netns or not h.netns.replace("-", "").isalnum() or len(h.netns) > 12:
+            raise DeploymentError(
+                f"{w}.netns: expected a name of letters, digits and '-' (at most 12, it names "
+                f"the veth pair too), got {h.netns!r}"
+            )
+        if h.netns in seen:
+            raise DeploymentError(f"{w}.netns: {h.netns!r} is used twice")
+        seen.add(h.netns)
+        for pattern in h.services:
+            if not any(fnmatchcase(s, pattern) for s in dep.services):
+                raise DeploymentError(f"{w}.services: {pattern!r} matches no service")
+        if any(fnmatchcase("monitor", p) for p in h.services):
+            raise DeploymentError(f"{w}.services: the monitor runs beside the launcher")
+
+
+CHECKS: tuple[Callable[[Deployment], None], ...] = (
+    check_run,
+    check_bus,
+    check_environment,
+    check_bodies,
+    check_deputies,
+    check_links,
+    check_restarts,
+    check_faults,
+    check_hosts,
+)
+"""The semantic checks, in the order they run."""
+
+
+def validate(dep: Deployment) -> None:
+    """Run every check of :data:`CHECKS`; the first problem raises DeploymentError."""
+    for check in CHECKS:
+        check(dep)
+
+
+def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
+    """A checked Deployment from a parsed TOML table (``path``: the file it came from)."""
+    dep = from_table(Deployment, table, keys=DEPLOYMENT_KEYS, error=DeploymentError)
+    dep = replace(dep, path=path)
+    validate(dep)
+    return dep

@@ -1,0 +1,286 @@
+"""The monitor's recording: an MCAP file of JSON channels, and reading one back.
+
+``Recorder`` writes ``recording.mcap`` (zstd chunks):
+
+    <topic>            one channel per topic (and schema), message_encoding "json": the wire
+                       message as JSON {"schema", "version", "seq", "t", "src", "body"} with a
+                       jsonschema per message schema (``message_json_schema``); log_time =
+                       receive wall time (ns since the epoch), publish_time = simulation time t
+                       (ns)
+    rejected/<topic>   payloads that do not decode: {"key", "reason", "error", "size",
+                       "payload_b64", "truncated"}; publish_time = the latest simulation time
+    alive/<service>    liveliness changes {"service", "alive"} (a service came up or went away)
+
+The metadata record ``ddvi`` names the run, and the deployment file is attached.
+``read_recording`` reads a file back, also one cut short (no footer) by a kill -9.
+"""
+
+from __future__ import annotations
+
+import base64
+import functools
+import json
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import orjson
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import CompressionType, Writer
+
+from services.interface import (
+    REASONS,
+    SCHEMAS,
+    Array,
+    Bool,
+    Float,
+    Int,
+    IntMap,
+    Message,
+    MessageError,
+    ScalarMap,
+    Schema,
+    Str,
+    topics,
+)
+
+RECORDING = "recording.mcap"
+"""The recording's file name in the run folder."""
+MAX_RAW = 64 * 1024  # bytes of a rejected payload kept in the recording
+CHUNK_SIZE = 256 * 1024
+
+_MAX_NS = 2**64 - 1
+
+
+def ns(t: float) -> int:
+    """Simulation seconds as MCAP nanoseconds, clamped to the unsigned 64-bit range."""
+    x = t * 1e9
+    if not x > 0:
+        return 0
+    return _MAX_NS if x >= _MAX_NS else round(x)
+
+
+def _field_json_schema(f: Any) -> dict[str, Any]:
+    if isinstance(f, Int):
+        return {"type": "integer"}
+    if isinstance(f, Float):
+        return {"type": "number"}
+    if isinstance(f, Bool):
+        return {"type": "boolean"}
+    if isinstance(f, Str):
+        return {"type": "string"} | ({"enum": list(f.choices)} if f.choices else {})
+    if isinstance(f, Array):
+        item: dict[str, Any] = {"type": "number"}
+        for d in reversed(f.shape):
+            item = {"type": "array", "items": item}
+            if d is not None:
+                item |= {"minItems": d, "maxItems": d}
+        return item
+    if isinstance(f, IntMap):
+        return {"type": "object", "additionalProperties": {"type": "integer"}}
+    if isinstance(f, ScalarMap):
+        return {
+            "type": "object",
+            "additionalProperties": {"type": ["number", "integer", "string", "boolean"]},
+        }
+    raise TypeError(f"no JSON schema for field kind {type(f).__name__}")
+
+
+def message_json_schema(spec: Schema) -> dict[str, Any]:
+    """The jsonschema of one message type as recorded (the wire message as JSON)."""
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": f"ddvi.{spec.name}",
+        "type": "object",
+        "properties": {
+            "schema": {"type": "string", "const": spec.name},
+            "version": {"type": "integer"},
+            "seq": {"type": "integer"},
+            "t": {"type": "number", "description": "simulation time, s"},
+            "src": {"type": "string"},
+            "body": {
+                "type": "object",
+                "properties": {k: _field_json_schema(f) for k, f in spec.fields.items()},
+                "required": list(spec.fields),
+                "additionalProperties": False,
+            },
+        },
+        "required": ["schema", "version", "seq", "t", "src", "body"],
+    }
+
+
+@functools.cache
+def _recorded_schema(name: str) -> dict[str, Any]:
+    """message_json_schema of a known schema, built once (the recorder asks per message)."""
+    return message_json_schema(SCHEMAS[name])
+
+
+REJECTED_SCHEMA = {
+    "title": "ddvi.rejected",
+    "type": "object",
+    "properties": {
+        "key": {"type": "string"},
+        "reason": {"type": "string", "enum": sorted(REASONS)},
+        "error": {"type": "string"},
+        "size": {"type": "integer"},
+        "payload_b64": {"type": "string", "contentEncoding": "base64"},
+        "truncated": {"type": "boolean"},
+    },
+}
+ALIVE_SCHEMA = {
+    "title": "ddvi.alive",
+    "type": "object",
+    "properties": {"service": {"type": "string"}, "alive": {"type": "boolean"}},
+}
+
+
+class Recorder:
+    """An MCAP file of JSON channels, flushed on demand, closed exactly once."""
+
+    def __init__(self, path: Path, metadata: dict[str, str], attachment: Path | None) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self._file: IO[bytes] = path.open("wb")
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="ddvi-fsw monitor")
+        self._writer.add_metadata("ddvi", metadata)
+        if attachment is not None and attachment.is_file():
+            now = time.time_ns()
+            self._writer.add_attachment(
+                now, now, attachment.name, "application/toml", attachment.read_bytes()
+            )
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[tuple[str, str], int] = {}
+        self.messages = 0
+        self.closed = False
+        self.flush()
+
+    def _schema_id(self, name: str, schema: dict[str, Any]) -> int:
+        sid = self._schemas.get(name)
+        if sid is None:
+            data = json.dumps(schema).encode()
+            sid = self._schemas[name] = self._writer.register_schema(name, "jsonschema", data)
+        return sid
+
+    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any]) -> int:
+        cid = self._channels.get((topic, schema_name))
+        if cid is None:
+            sid = self._schema_id(schema_name, schema)
+            cid = self._writer.register_channel(topic, "json", sid)
+            self._channels[(topic, schema_name)] = cid
+        return cid
+
+    def write(
+        self,
+        topic: str,
+        schema_name: str,
+        schema: dict[str, Any],
+        data: dict[str, Any],
+        log_ns: int,
+        pub_ns: int,
+        seq: int = 0,
+    ) -> None:
+        """Write ``data`` as JSON on channel ``topic`` (registered with its schema on first
+        use); ``log_ns``: receive wall time, ``pub_ns``: simulation time, both ns."""
+        cid = self._channel(topic, schema_name, schema)
+        payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
+        self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
+        self.messages += 1
+
+    def message(self, topic: str, msg: Message, log_ns: int) -> None:
+        """Record a decoded bus message received at wall time ``log_ns``."""
+        data = {
+            "schema": msg.schema,
+            "version": msg.version,
+            "seq": msg.seq,
+            "t": msg.t,
+            "src": msg.src,
+            "body": msg.body,  # validated: finite float64 arrays, which orjson writes as lists
+        }
+        schema = _recorded_schema(msg.schema)
+        self.write(topic, f"ddvi.{msg.schema}", schema, data, log_ns, ns(msg.t), msg.seq)
+
+    def rejected(
+        self, topic: str, key: str, payload: bytes, err: MessageError, log_ns: int, t: float
+    ) -> None:
+        """Record a payload that did not decode (its first ``MAX_RAW`` bytes), at the latest
+        simulation time ``t``."""
+        data = {
+            "key": key,
+            "reason": err.reason,
+            "error": str(err)[:2000],
+            "size": len(payload),
+            "payload_b64": base64.b64encode(payload[:MAX_RAW]).decode(),
+            "truncated": len(payload) > MAX_RAW,
+        }
+        self.write(f"rejected/{topic}", "ddvi.rejected", REJECTED_SCHEMA, data, log_ns, ns(t))
+
+    def alive(self, service: str, alive: bool, log_ns: int, t: float) -> None:
+        """Record that ``service``'s liveliness token appeared (alive) or went away."""
+        data = {"service": service, "alive": alive}
+        self.write(topics.alive_topic(service), "ddvi.alive", ALIVE_SCHEMA, data, log_ns, ns(t))
+
+    def flush(self) -> None:
+        """Close the open chunk and hand it to the OS (what a kill -9 cannot lose)."""
+        if not self.closed:
+            self._writer.flush()
+
+    def close(self) -> None:
+        """Write the summary and footer, and sync the file to disk; once only."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._writer.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+        finally:
+            self._file.close()
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """One message read back from a recording."""
+
+    topic: str
+    schema: str
+    log_time: int
+    publish_time: int
+    data: dict[str, Any]
+
+
+def read_recording(path: str | Path) -> tuple[list[Recorded], bool]:
+    """Every message of a recording in file order, and whether the file was complete.
+
+    A file cut short (the monitor killed with -9) has no footer: it is then read sequentially
+    up to the last complete chunk.
+    """
+
+    def convert(items: Iterator[Any]) -> Iterator[Recorded]:
+        for schema, channel, message in items:
+            yield Recorded(
+                channel.topic,
+                schema.name if schema is not None else "",
+                message.log_time,
+                message.publish_time,
+                json.loads(message.data),
+            )
+
+    with open(path, "rb") as f:
+        try:
+            reader = make_reader(f)
+            return list(convert(reader.iter_messages(log_time_order=False))), True
+        except Exception:  # no footer or summary: read it as a stream below
+            pass
+    out: list[Recorded] = []
+    with open(path, "rb") as f:
+        reader = NonSeekingReader(f)
+        try:
+            for item in convert(reader.iter_messages(log_time_order=False)):
+                out.append(item)
+        except Exception:  # the truncated tail
+            pass
+    return out, False

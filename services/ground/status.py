@@ -1,0 +1,97 @@
+"""The monitor's live status on stderr: a rich table, one row per deputy, redrawn on a
+terminal; otherwise one plain progress line every 10 % of the mission."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from services.ground.rundata import RunData
+
+
+def _f(v: Any, fmt: str) -> str:
+    """``v`` formatted by ``fmt``, or "-" when there is none."""
+    return "-" if v is None else format(v, fmt)
+
+
+def _rank(s: dict[str, Any]) -> str:
+    """A learner's progress, samples/intervals/rank:rank needed ("-" for LQR)."""
+    if "samples" not in s or s.get("mode") == "lqr":
+        return "-"
+    return f"{s['samples']}/{s['intervals']}/{s['rank']}:{s['rank_needed']}"
+
+
+class Status:
+    """Terminal status: rich live table on a TTY, plain 10 % progress lines otherwise."""
+
+    def __init__(self, data: RunData, tty: bool) -> None:
+        self.data = data
+        self.tty = tty
+        self.next_pct = 10
+        self.last_line = ""
+        self._live: Any = None
+        if tty:
+            from rich.console import Console
+            from rich.live import Live
+
+            self._live = Live(
+                console=Console(stderr=True), auto_refresh=False, redirect_stdout=False
+            )
+            self._live.start()
+
+    def _table(self, counters: dict[str, int]) -> Any:
+        from rich.table import Table
+
+        d = self.data
+        title = (
+            f"ddvi {d.run}  t = {d.sim_t:.0f} s ({d.sim_t / d.period:.2f} / "
+            f"{d.duration / d.period:.2f} orbits)  recorded {counters.get('recorded', 0)}  "
+            f"rejected {counters.get('rejected', 0)}"
+        )
+        table = Table(title=title, title_justify="left", expand=False)
+        for col in ("deputy", "orbits", "y - y_ref [m]", "x [m]", "sigma3", "phase", "s/i/rank"):
+            table.add_column(col, justify="left" if col in ("deputy", "phase") else "right")
+        for dep in d.dep.deputy:
+            s = d.live(dep)
+            table.add_row(
+                f"{dep.name} ({dep.controller})",
+                f"{s['orbits']:.2f}",
+                _f(s.get("ey"), "+.3f"),
+                _f(s.get("x"), "+.3f"),
+                _f(s.get("sigma3"), "+.4f"),
+                str(s.get("phase", "-")),
+                _rank(s),
+            )
+        return table
+
+    def _line(self) -> str:
+        d = self.data
+        parts = [f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
+                 f"({d.sim_t / d.period:.2f} orbits)"]  # fmt: skip
+        for dep in d.dep.deputy:
+            s = d.live(dep)
+            parts.append(
+                f"{dep.name}: y-y_ref={_f(s.get('ey'), '+.2f')} x={_f(s.get('x'), '+.2f')} "
+                f"sigma3={_f(s.get('sigma3'), '+.3f')} {s.get('phase', '-')} s/i/rank={_rank(s)}"
+            )
+        return " | ".join(parts)
+
+    def update(self, counters: dict[str, int]) -> None:
+        if self._live is not None:
+            self._live.update(self._table(counters), refresh=True)
+            return
+        d = self.data
+        pct = 100 * d.sim_t / d.duration if d.duration > 0 else 0
+        if pct >= self.next_pct:
+            self.last_line = self._line()
+            print(self.last_line, file=sys.stderr, flush=True)
+            while self.next_pct <= pct:
+                self.next_pct += 10
+
+    def close(self, counters: dict[str, int]) -> None:
+        if self._live is not None:
+            self._live.update(self._table(counters), refresh=True)
+            self._live.stop()
+            self._live = None
+        elif not self.tty and self._line() != self.last_line:
+            print(self._line(), file=sys.stderr, flush=True)
