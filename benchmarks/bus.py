@@ -45,13 +45,14 @@ ECHO_READY = "ready"
 BODY = {
     "sc": "deputy1",
     "x_hill": np.array([12.5, -33000.25, 0.5, 0.0031, -0.0079, 0.0004]),
+    "cov": np.diag([0.02, 0.02, 0.02, 4e-8, 4e-8, 4e-8]),
     "altitude": 300e3,
     "valid": True,
 }
 
 
 def _plain_body() -> dict[str, Any]:
-    return {**BODY, "x_hill": BODY["x_hill"].tolist()}
+    return {**BODY, "x_hill": BODY["x_hill"].tolist(), "cov": BODY["cov"].tolist()}
 
 
 class _Side:

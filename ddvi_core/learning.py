@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ddvi_core.policy_learning import iterate
 from ddvi_core.regression import (
     EquilibratedTheta,
     RiccatiMap,
@@ -45,7 +46,6 @@ from ddvi_core.value_iteration import (
     BoundSchedule,
     Scaling,
     StepSequence,
-    value_iteration_loop,
 )
 from ddvi_core.vec import triangle_size
 
@@ -407,6 +407,9 @@ def learn_from_data(
     rank_rtol: float = 1e-10,
     state_scale: ArrayLike | None = None,
     translation: ArrayLike | None = None,
+    rule: str = "residual",
+    method: str = "vi",
+    K0: ArrayLike | None = None,
 ) -> DDVIResult:
     """Algorithm 2 on collected interval data.
 
@@ -424,6 +427,14 @@ def learn_from_data(
     are exactly Algorithm 2's.  It matters far from the origin: at 35 km behind the chief,
     xbar = x is all along-track offset, the regression is dominated by P_yy y^2, and any
     unmodelled acceleration enters it scaled by the offset.
+
+    ``rule`` is the stopping rule ("residual" or the scale-free "relative") and an
+    ``adaptive`` step takes a fraction of the Euler stability limit of the current closed loop
+    (:mod:`ddvi_core.convergence`); both read the closed loop's eigenvalues off the matrices
+    the data's map implies (:func:`ddvi_core.regression.implied_plant`).  ``method``: "vi"
+    (Algorithm 2), "pi" (policy iteration on the same data from the stabilising gain ``K0``
+    (m, n), SI units) or "hybrid" (value iteration until the gain stabilises, then policy
+    iteration): :mod:`ddvi_core.policy_learning`.
     """
     n, m, q = data.n, data.m, data.q
     Q, R = _checked_weights(data, Q, R, C, E, F)
@@ -439,31 +450,19 @@ def learn_from_data(
     rank, condition = _checked_rank(thetas, data, needed, rank_rtol)
     maps = regression_maps(thetas)
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
-    steps, bounds = steps or StepSequence(), bounds or BoundSchedule()
-    P_s, _, k, resets, converged, _, history, why = value_iteration_loop(
-        RiccatiMap(maps[0], n, m), Q_s, R_s, P0_s, steps, bounds, tol, max_iterations
-    )
+    K0_s = np.zeros((m, n)) if K0 is None else np.asarray(K0, dtype=float) * S[None, :]
+    P_s, _, k, resets, converged, _, history, why = iterate(
+        method, RiccatiMap(maps[0], n, m), Q_s, R_s, P0_s, K0_s, steps or StepSequence(),
+        bounds or BoundSchedule(), tol, max_iterations, rule,
+    )  # fmt: skip
     K_s, residual = regression_solution(maps[0], thetas[0], P_s, n, m)
     B_s, D_s, S_X = implied_matrices(maps, P_s, K_s, R_s, n, m, q)
     X, U = _regulator_in_si(X_list, S_X, B_s, D_s, S, Qbar, Rbar, m)
     K = sc.unscale_K(K_s)
     return DDVIResult(
-        K=K,
-        L=U + K @ X,
-        P=sc.unscale_P(P_s),
-        X=X,
-        U=U,
-        iterations=k,
-        resets=resets,
-        converged=converged,
-        rank=rank,
-        rank_needed=needed,
-        condition=condition,
-        residual=residual,
-        intervals=data.intervals,
-        scaling=sc,
-        B_implied=B_s * S[:, None] * w0,
-        D_implied=D_s * S[:, None] * w0,
-        history=history,
+        K=K, L=U + K @ X, P=sc.unscale_P(P_s), X=X, U=U, iterations=k, resets=resets,
+        converged=converged, rank=rank, rank_needed=needed, condition=condition,
+        residual=residual, intervals=data.intervals, scaling=sc,
+        B_implied=B_s * S[:, None] * w0, D_implied=D_s * S[:, None] * w0, history=history,
         message=_outcome(k, resets, converged, why),
-    )
+    )  # fmt: skip

@@ -45,7 +45,12 @@ class LearningConfig:
     step_size: 'harmonic' (step_size / k) or 'constant' (step_size in units of time_unit);
     bounds / bound_base: 'linear' base (r+1) or 'geometric' base 2^r; state_scale: the states'
     units in the iteration; input_limit: actuator saturation; tol, max_iterations: the
-    stopping rule.
+    stopping rule; stopping: 'residual' (|F(P)| < tol max(1, |P|)) or 'relative' (the
+    scale-free estimate of |P - P*| / |P| below tol, :mod:`ddvi_core.convergence`); step
+    'adaptive': step_size (below 1) times the Euler stability limit of the current closed loop.
+    exploration_channels: 'common' (every input sums every frequency, each with its own phases)
+    or 'interleaved' (input i takes frequencies i, i + m, ...).
+    A system file's missing keys are derived from the system (:mod:`ddvi_core.defaults`).
 
     The flight software's schedule (:data:`FLIGHT_SCHEDULE_KEYS`, read from a deployment's
     ``deputy.learning`` table, never from a system file; in chief orbits): learn_at_orbits:
@@ -58,6 +63,25 @@ class LearningConfig:
     relearn_max_attempts: re-learning attempts that fail before the old gains return;
     detector_bound: the detection threshold, times the input-equivalent residual's RMS on the
     learning data; detector_window_orbits: the residual's mean is taken over this window.
+    method: 'value-iteration' (the paper's Algorithm 2, :mod:`ddvi_core.learning`) or
+    'model-fit' (the first-order interval fit, :mod:`ddvi_core.model_fit`);
+    data_from_orbits: samples before this are not the learner's (the initial transient);
+    fit_stride: model-fit: one interval of ``interval`` seconds starts every this many seconds;
+    fit_smoothing: model-fit: the interval relation averaged over shifts of up to this many
+    seconds (0: end points as sampled), which averages the end points' noise;
+    fit_tolerance: model-fit: an attempt is accepted when the gain's predicted relative error
+    (``ddvi_core.model_fit.gain_standard_error``) is at most this (else it retries later);
+    fit_deadline_orbits, fit_deadline_tolerance: model-fit: from this orbit on (0: never) the
+    tolerance is the second (a noisy window's predicted error is pessimistic);
+    refresh_orbits: model-fit: refit D (A and B held) and the feedforward every this many
+    orbits from the data flown on the learned gains on station (0: off);
+    trim_orbits: model-fit: on station, move the feedforward's constant term by -trim_gain x
+    K_y x the mean along-track error of every this many orbits (0: off), counted only when
+    every |y - y_ref| of the period is at most station_radius m (``services.flight.trim``);
+    station_radius: model-fit: on station is within this many m of the slot along track (the
+    trim's periods and the refresh's samples);
+    density_exostate: the learner's exostate carries the nominal atmosphere's density ratio at
+    the navigated altitude from the start (craft that may differ).
     """
 
     interval: float = 600.0
@@ -79,6 +103,8 @@ class LearningConfig:
     input_limit: float | None = None
     tol: float = 1e-6
     max_iterations: int = 200_000
+    stopping: str = "residual"
+    exploration_channels: str = "common"
     # the flight software's schedule (FLIGHT_SCHEDULE_KEYS)
     learn_at_orbits: float = 15.0
     retry_orbits: float = 1.0
@@ -90,6 +116,18 @@ class LearningConfig:
     relearn_max_attempts: int = 5
     detector_bound: float = 100.0
     detector_window_orbits: float = 1.0
+    method: str = "value-iteration"
+    data_from_orbits: float = 0.0
+    fit_stride: float = 10.0
+    fit_smoothing: float = 0.0
+    fit_tolerance: float = 0.01
+    fit_deadline_orbits: float = 10.0
+    fit_deadline_tolerance: float = 0.5
+    refresh_orbits: float = 0.0
+    trim_orbits: float = 2.0
+    station_radius: float = 1000.0
+    trim_gain: float = 0.5
+    density_exostate: bool = False
 
     def steps(self) -> StepSequence:
         from ddvi_core.value_iteration import StepSequence
@@ -132,8 +170,17 @@ class LearningConfig:
             math.isfinite(self.time_unit) and self.time_unit > 0
         ):
             raise bad("time_unit", "must be a positive rate in 1/s")
-        if self.step not in ("harmonic", "constant"):
-            raise bad("step", f"must be 'harmonic' or 'constant', got {self.step!r}")
+        if self.step not in ("harmonic", "constant", "adaptive"):
+            raise bad("step", f"must be 'harmonic', 'constant' or 'adaptive', got {self.step!r}")
+        if self.step == "adaptive" and not self.step_size < 1:
+            raise bad("step_size", "an adaptive step's size is a fraction below 1")
+        if self.exploration_channels not in ("common", "interleaved"):
+            raise bad(
+                "exploration_channels",
+                f"must be 'common' or 'interleaved', got {self.exploration_channels!r}",
+            )
+        if self.stopping not in ("residual", "relative"):
+            raise bad("stopping", f"must be 'residual' or 'relative', got {self.stopping!r}")
         if self.bounds not in ("linear", "geometric"):
             raise bad("bounds", f"must be 'linear' or 'geometric', got {self.bounds!r}")
         sizes = {"x0": problem.n, "v0": problem.q, "state_scale": problem.n}
@@ -170,6 +217,18 @@ FLIGHT_SCHEDULE_KEYS = (
     "relearn_max_attempts",
     "detector_bound",
     "detector_window_orbits",
+    "method",
+    "data_from_orbits",
+    "fit_stride",
+    "fit_smoothing",
+    "fit_tolerance",
+    "fit_deadline_orbits",
+    "fit_deadline_tolerance",
+    "refresh_orbits",
+    "trim_orbits",
+    "station_radius",
+    "trim_gain",
+    "density_exostate",
 )
 """The LearningConfig fields only the flight software reads (a deployment's learning table)."""
 

@@ -27,6 +27,7 @@ __all__ = [
     "equilibrated_thetas",
     "exostate_offsets",
     "implied_matrices",
+    "implied_plant",
     "rank_report",
     "regression_maps",
     "regression_solution",
@@ -184,6 +185,23 @@ class RiccatiMap:
         H = np.zeros((n, n))
         H[rows, cols] = self.H_map @ p
         return H + np.triu(H, 1).T, (self.K_map @ p).reshape(n, self.m).T
+
+
+def implied_plant(riccati_map: RiccatiMap, R_s: NDArray) -> tuple[NDArray, NDArray]:
+    """(A_s (n, n), B_s (n, m)) that the data's map implies: H(e_i e_i^T) = a_i e_i^T +
+    e_i a_i^T for a_i the i-th row of A (so its column i holds a_i, twice on the diagonal) and
+    K(I) = R^-1 B^T.  Only the step rule and the stopping rule use them (the closed loop's
+    eigenvalues), never the iteration itself."""
+    n = riccati_map.n
+    A = np.empty((n, n))
+    for i in range(n):
+        E = np.zeros((n, n))
+        E[i, i] = 1.0
+        col = riccati_map(E)[0][:, i].copy()
+        col[i] *= 0.5
+        A[i] = col
+    B = (R_s @ riccati_map(np.eye(n))[1]).T
+    return A, B
 
 
 def regression_solution(

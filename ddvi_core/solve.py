@@ -1,29 +1,33 @@
-"""One entry point for every method on a System: lqr, pi, vi, ddvi.
+"""One entry point for every method on a System: lqr, pi, vi (model-based), and ddvi, dpi,
+hybrid (from data: value iteration, policy iteration, value then policy iteration).
 
 Each returns a :class:`Solution` with K, L (empty without an exosystem), P and the method's
-diagnostics.  ``ddvi`` simulates the system's linear model exactly (zero-order hold) with the
-configured exploration and learns from those data with the same collector and learner the
-controller service uses: the learner sees samples, never A or B.
+diagnostics.  The data-driven methods simulate the system's linear model exactly (zero-order
+hold) with the configured exploration and learn from those data with the same collector and
+learner the controller service uses: the learner sees samples, never A or B.
 """
 
 from __future__ import annotations
 
+import math
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ddvi_core.learning import IntervalCollector, learn_from_data
+from ddvi_core.exploration import InterleavedExploration, periodic_start
+from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.lqr import NotStabilisingError, policy_iteration, solve_lqr
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
 from ddvi_core.simulate import Exploration, simulate_zoh
 from ddvi_core.systems import System
 from ddvi_core.value_iteration import Scaling, balanced_scaling, value_iteration
 
-__all__ = ["METHODS", "Solution", "solve"]
+__all__ = ["DATA_METHODS", "METHODS", "Solution", "collect", "reference_errors", "solve"]
 
-METHODS = ("lqr", "pi", "vi", "ddvi")
+METHODS = ("lqr", "pi", "vi", "ddvi", "dpi", "hybrid")
 
 
 @dataclass(frozen=True)
@@ -92,6 +96,7 @@ def solve(system: System, method: str, seed: int | None = None) -> Solution:
             tol=cfg.tol,
             max_iterations=cfg.max_iterations,
             scaling=_vi_scaling(system),
+            rule=cfg.stopping,
         )
         return Solution(
             "vi",
@@ -107,52 +112,89 @@ def solve(system: System, method: str, seed: int | None = None) -> Solution:
                 "message": r.message,
             },
         )
-    if method == "ddvi":
-        return _ddvi(system, cfg.seed if seed is None else seed)
+    if method in DATA_METHODS:
+        return _learn(system, method, cfg.seed if seed is None else seed)
     raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
 
 
-def _ddvi(system: System, seed: int) -> Solution:
+DIVERGENCE = 1e6
+"""The data diverge when |x| exceeds this many times its largest value over the first
+interval: far below any overflow, far above what a bounded exploration produces."""
+
+# --method name: the learner's iteration (ddvi_core.policy_learning.LEARNING_METHODS)
+DATA_METHODS = {"ddvi": "vi", "dpi": "pi", "hybrid": "hybrid"}
+
+
+def _diverged(times: list[float], norms: list[float], first: float, K0: NDArray) -> LearningError:
+    """The one-line error for data whose |x| grew DIVERGENCE-fold over ``first`` (its largest
+    value over the first interval), with the growth rate fitted to log |x| over the second half
+    of the samples (times, norms: per sample)."""
+    half = len(times) // 2
+    t, lg = np.asarray(times[half:]), np.log(np.maximum(norms[half:], 1e-300))
+    rate = float(np.polyfit(t, lg, 1)[0]) if t.size > 1 and np.ptp(t) > 0 else math.inf
+    return LearningError(
+        f"the data diverge: |x| grew {norms[-1] / first:.3g}-fold by t = {times[-1]:.4g} s, "
+        f"at {rate:.3g} 1/s (e-folding every {1 / rate:.3g} s), under the initial gain "
+        f"learning.K0 = {np.round(K0, 6).tolist()}: the plant is unstable with it; give a "
+        "stabilising learning.K0 in the system file's [learning] table"
+    )
+
+
+def collect(system: System, seed: int) -> IntervalCollector:
+    """The interval data of the system's linear model simulated exactly under
+    u = -K0 x + exploration (the system's learning configuration); raises LearningError,
+    naming learning.K0 and the growth rate, when the state diverges."""
     pr, cfg = system.problem, system.learning
     rate = cfg.time_unit or float(np.max(np.abs(np.linalg.eigvals(pr.A)))) or 1.0
     freqs = cfg.exploration_frequencies or tuple(np.geomspace(0.3 * rate, 30 * rate, 6))
-    exploration = Exploration(cfg.exploration_amplitude, tuple(freqs), seed)
+    kind = InterleavedExploration if cfg.exploration_channels == "interleaved" else Exploration
+    exploration = kind(cfg.exploration_amplitude, tuple(freqs), seed)
     x0 = np.zeros(pr.n) if cfg.x0 is None else np.asarray(cfg.x0, float)
+    if "x0" in system.derived and seed != cfg.seed:  # the periodic start of this exploration
+        x0 = periodic_start(pr.A - pr.B @ cfg.K0_matrix(pr), pr.B, exploration)
     v0 = None
     if pr.has_exosystem:
         v0 = np.ones(pr.q) if cfg.v0 is None else np.asarray(cfg.v0, float)
+    K0 = cfg.K0_matrix(pr)
     collector = IntervalCollector(pr.n, pr.m, pr.q, cfg.interval)
-    for t, x, u, v in simulate_zoh(
-        pr.A,
-        pr.B,
-        pr.D,
-        pr.E,
-        x0,
-        v0,
-        K0=cfg.K0_matrix(pr),
-        exploration=exploration,
-        sample_period=cfg.sample_period,
-        command_period=cfg.command_period,
-        duration=cfg.interval * cfg.intervals,
-        input_limit=cfg.input_limit,
-    ):
-        collector.add(t, x, u, v)
-    r = learn_from_data(
-        collector.data(),
-        pr.Q,
-        pr.R,
-        time_unit=rate,
-        C=pr.C,
-        E=pr.E,
-        F=pr.F,
-        steps=cfg.steps(),
-        bounds=cfg.bound_schedule(),
-        tol=cfg.tol,
-        max_iterations=cfg.max_iterations,
-        state_scale=cfg.state_scale,
-    )
+    times: list[float] = []
+    norms: list[float] = []
+    first = 0.0
+    samples = simulate_zoh(
+        pr.A, pr.B, pr.D, pr.E, x0, v0, K0=K0, exploration=exploration,
+        sample_period=cfg.sample_period, command_period=cfg.command_period,
+        duration=cfg.interval * cfg.intervals, input_limit=cfg.input_limit,
+    )  # fmt: skip
+    with np.errstate(all="ignore"):
+        for t, x, u, v in samples:
+            size = float(np.sqrt(x @ x))
+            times.append(t)
+            norms.append(size)
+            if t <= cfg.interval:
+                first = max(first, size)
+            elif not size <= DIVERGENCE * max(first, 1e-300):
+                raise _diverged(times, norms, first, K0)
+            collector.add(t, x, u, v)
+    return collector
+
+
+def _learn(system: System, method: str, seed: int) -> Solution:
+    """ddvi, dpi or hybrid: the data, then the learner on them alone (timed apart)."""
+    pr, cfg = system.problem, system.learning
+    t0 = time.perf_counter()
+    collector = collect(system, seed)
+    t1 = time.perf_counter()
+    with np.errstate(all="ignore"):  # a non-finite iterate stops the loop with its reason
+        r = learn_from_data(
+            collector.data(), pr.Q, pr.R,
+            time_unit=cfg.time_unit or float(np.max(np.abs(np.linalg.eigvals(pr.A)))) or 1.0,
+            C=pr.C, E=pr.E, F=pr.F, steps=cfg.steps(), bounds=cfg.bound_schedule(),
+            tol=cfg.tol, max_iterations=cfg.max_iterations, state_scale=cfg.state_scale,
+            rule=cfg.stopping, method=DATA_METHODS[method], K0=cfg.K0_matrix(pr),
+        )  # fmt: skip
+    t2 = time.perf_counter()
     return Solution(
-        "ddvi",
+        method,
         r.K,
         r.L,
         r.P,
@@ -166,6 +208,8 @@ def _ddvi(system: System, seed: int) -> Solution:
             "residual": r.residual,
             "intervals": r.intervals,
             "samples": collector.samples,
+            "data_s": t1 - t0,
+            "learning_s": t2 - t1,
             "scaling": r.scaling.as_dict(),
             "message": r.message,
         },

@@ -2,9 +2,10 @@
 
 A system file is TOML with matrices ``A``, ``B``, ``Q``, ``R`` (lists of rows), optionally
 ``C``, ``D``, ``E``, ``F``, ``name``, ``description``, and a ``[learning]`` table (see
-:class:`LearningConfig`; the keys :data:`SYSTEM_FILE_LEARNING_KEYS`).  The strict table reader
-(:mod:`ddvi_core.tables`) checks every key and value: every error names the key and the problem
-in one line.
+:class:`LearningConfig`; the keys :data:`SYSTEM_FILE_LEARNING_KEYS`): each key it gives is an
+override, and every one it leaves out is derived from the system (:mod:`ddvi_core.defaults`).
+The strict table reader (:mod:`ddvi_core.tables`) checks every key and value: every error names
+the key and the problem in one line.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ddvi_core.defaults import derive_learning
 from ddvi_core.learning_config import (
     FLIGHT_SCHEDULE_KEYS,
     SYSTEM_FILE_LEARNING_KEYS,
@@ -49,10 +51,16 @@ __all__ = [
 
 @dataclass(frozen=True)
 class System:
+    """A regulation problem and how to learn it; ``derived`` names the learning settings
+    derived from the system (:mod:`ddvi_core.defaults`), ``given`` those a system file's
+    [learning] table gives."""
+
     name: str
     description: str
     problem: RegulationProblem
     learning: LearningConfig = field(default_factory=LearningConfig)
+    derived: tuple[str, ...] = ()
+    given: tuple[str, ...] = ()
 
 
 def _rendezvous() -> System:
@@ -156,8 +164,11 @@ def system_from_table(table: dict[str, Any], default_name: str = "system") -> Sy
         )
     except ProblemError as exc:
         raise SystemFileError(str(exc)) from None
-    spec.learning.validate(problem)
-    return System(problem.name, spec.description, problem, spec.learning)
+    given = table.get("learning", {})
+    keys = frozenset(given) if isinstance(given, dict) else frozenset()
+    learning, derived = derive_learning(problem, spec.learning, keys)
+    learning.validate(problem)
+    return System(problem.name, spec.description, problem, learning, derived, tuple(sorted(keys)))
 
 
 def load_system(name_or_path: str) -> System:

@@ -23,6 +23,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from ddvi_core.convergence import adaptive_step, budget_report, relative_error
+
 __all__ = [
     "BoundSchedule",
     "Scaling",
@@ -87,6 +89,9 @@ class Scaling:
         }
 
 
+STEP_KINDS = ("harmonic", "constant", "adaptive")
+STOPPING_RULES = ("residual", "relative")
+
 DEFAULT_TIME_UNIT_DIVISOR = 100.0
 """With eps_k = 1/k the iteration needs about (w^2/alpha) exp(L / (2 alpha)) steps (alpha the
 slowest closed-loop decay rate and w its frequency, both in the iteration's time unit, L the
@@ -121,18 +126,23 @@ def balanced_scaling(
 
 @dataclass(frozen=True)
 class StepSequence:
-    """eps_k for k = 0, 1, ...: ``harmonic`` eps_k = gain / (k + 1) (the paper's 1/k), or
+    """eps_k for k = 0, 1, ...: ``harmonic`` eps_k = gain / (k + 1) (the paper's 1/k),
     ``constant`` eps_k = gain (forward Euler with a fixed step: pick it below the Euler
-    stability limit of the slowest lightly damped closed-loop mode)."""
+    stability limit of the slowest lightly damped closed-loop mode), or ``adaptive``: ``gain``
+    (below 1) times the Euler stability limit of the current iterate's closed loop, no longer
+    than :data:`ddvi_core.convergence.TRUST` |P| / |F(P)| (the loop computes it; see
+    :func:`ddvi_core.convergence.adaptive_step`)."""
 
     kind: str = "harmonic"
     gain: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.kind not in ("harmonic", "constant"):
-            raise ValueError(f"step kind must be 'harmonic' or 'constant', got {self.kind!r}")
+        if self.kind not in STEP_KINDS:
+            raise ValueError(f"step kind must be one of {', '.join(STEP_KINDS)}, got {self.kind!r}")
         if not (self.gain > 0 and math.isfinite(self.gain)):
             raise ValueError(f"step gain must be positive and finite, got {self.gain}")
+        if self.kind == "adaptive" and not self.gain < 1:
+            raise ValueError(f"an adaptive step's gain is a fraction below 1, got {self.gain}")
 
     def __call__(self, k: int) -> float:
         return self.gain / (k + 1) if self.kind == "harmonic" else self.gain
@@ -179,6 +189,35 @@ class VIResult:
 RiccatiMap = Callable[[NDArray], tuple[NDArray, NDArray]]
 
 
+ClosedLoop = Callable[[NDArray], NDArray]
+"""K_s (m, n) -> the eigenvalues (n,) of the closed loop A_s - B_s K_s (scaled units)."""
+
+
+def _step_and_error(
+    steps: StepSequence,
+    rule: str,
+    k: int,
+    K: NDArray,
+    P_norm: float,
+    residual: float,
+    closed_loop: ClosedLoop | None,
+    tol: float,
+) -> tuple[float, float, float]:
+    """(eps_k, the stopping rule's measure, its threshold): the residual against
+    tol max(1, |P|) for ``residual``, the estimated |P - P*| / |P| against tol for
+    ``relative``."""
+    lam = (
+        closed_loop(K)
+        if closed_loop is not None and (rule == "relative" or steps.kind == "adaptive")
+        else None
+    )
+    adaptive = steps.kind == "adaptive"
+    eps = adaptive_step(lam, steps.gain, P_norm, residual) if adaptive else steps(k)
+    if rule == "relative":
+        return eps, relative_error(lam, P_norm, residual), tol
+    return eps, residual, tol * max(1.0, P_norm)
+
+
 def value_iteration_loop(
     riccati_map: RiccatiMap,
     Q_s: NDArray,
@@ -190,14 +229,18 @@ def value_iteration_loop(
     max_iterations: int,
     psd_tol: float = 1e-6,
     max_psd_resets: int = 3,
+    closed_loop: ClosedLoop | None = None,
+    rule: str = "residual",
 ) -> tuple[NDArray, NDArray, int, int, bool, float, NDArray, str]:
     """The iteration shared by Algorithms 1 and 2, in scaled units.
 
     P~_{k+1} = P_k + eps_k (H_k + Q - K_{k+1}^T R K_{k+1});  reset to P0 (r += 1) when P~ leaves
     B_r (|P~|_F > radius, or an eigenvalue below -psd_tol |P~|: a strict PSD test would reset on
-    round-off); stop when |P~_{k+1} - P_k| / eps_k < tol max(1, |P_k|) (relative, so that the
-    rule does not depend on the cost's units).  Norms are Frobenius, which bound the
-    induced norm from above, so the stopping rule is never looser than the paper's.
+    round-off).  Stopping ``rule``: ``residual`` stops when |P~_{k+1} - P_k| / eps_k <
+    tol max(1, |P_k|); ``relative`` (scale-free, :func:`ddvi_core.convergence.relative_error`)
+    when the estimated |P_k - P*| / |P_k| < tol.  ``closed_loop`` (needed by the ``relative``
+    rule and the ``adaptive`` step) gives the eigenvalues of the current closed loop.  Norms
+    are Frobenius, which bound the induced norm from above.
 
     The exact Riccati flow never leaves the PSD cone from P0 >= 0 (at its boundary, where
     P z = 0, z^T dP z = z^T Q z >= 0): a step that does is too long, and the resets last until
@@ -207,25 +250,30 @@ def value_iteration_loop(
     times that way).  With an unchanged step every restart retraces the same path, so after
     ``max_psd_resets`` such resets in a row with no shorter step it gives up.
     Returns (P, K, iterations, resets, converged, residual, history, why): ``why`` says why
-    it stopped unconverged ("" when converged).
+    it stopped unconverged ("" when converged); ``history`` holds eps_k |F(P_k)|.
     """
+    if (rule == "relative" or steps.kind == "adaptive") and closed_loop is None:
+        raise ValueError("the relative stopping rule and the adaptive step need closed_loop")
     P = P0_s.copy()
     r = psd_resets = 0  # PSD resets since the step last shrank
     psd_eps = math.inf
-    history = np.empty(max_iterations)
+    history, errors = np.empty(max_iterations), np.empty(max_iterations)
     residual = math.inf
     K = np.zeros((R_s.shape[0], P.shape[0]))
     for k in range(max_iterations):
         H, K = riccati_map(P)
         dP = H + Q_s - K.T @ R_s @ K
         dP = (dP + dP.T) * 0.5
-        eps = steps(k)
         residual = float(np.sqrt(np.sum(dP * dP)))
         if not math.isfinite(residual):
             return P, K, k + 1, r, False, residual, history[:k], "the residual is not finite"
+        P_norm = float(np.sqrt(np.sum(P * P)))
+        eps, errors[k], threshold = _step_and_error(
+            steps, rule, k, K, P_norm, residual, closed_loop, tol
+        )
         P_new = P + eps * dP
         history[k] = eps * residual
-        if residual < tol * max(1.0, float(np.sqrt(np.sum(P * P)))):
+        if errors[k] < threshold:
             return P_new, K, k + 1, r, True, residual, history[: k + 1], ""
         norm = float(np.sqrt(np.sum(P_new * P_new)))
         if norm > bounds(r):
@@ -245,7 +293,8 @@ def value_iteration_loop(
                 return P, K, k + 1, r, False, residual, history[: k + 1], why
         else:
             P = P_new
-    return P, K, max_iterations, r, False, residual, history, f"residual {residual:.3g} > tol"
+    why = budget_report(errors, tol) if rule == "relative" else f"residual {residual:.3g} > tol"
+    return P, K, max_iterations, r, False, residual, history, why
 
 
 def value_iteration(
@@ -260,6 +309,7 @@ def value_iteration(
     tol: float = 1e-6,
     max_iterations: int = 200_000,
     scaling: Scaling | bool = True,
+    rule: str = "residual",
 ) -> VIResult:
     """Model-based value iteration (Algorithm 1) for K*, P*.
 
@@ -267,7 +317,8 @@ def value_iteration(
     :func:`balanced_scaling`, False for the problem's own units, or a :class:`Scaling`.
     P0 is given in scaled units (default 1e-3 I, small against P* as docs/design.md,
     "Expected figures", advises).  ``tol`` bounds the scaled Riccati residual relative to |P_k|
-    at the stop.
+    at the stop (``rule`` "residual"), or the estimated |P - P*| / |P| (``rule`` "relative",
+    scale-free: see :mod:`ddvi_core.convergence`).
     """
     A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
     n, m = B.shape
@@ -285,6 +336,9 @@ def value_iteration(
         AtP = A_s.T @ P
         return AtP + AtP.T, RinvBt @ P
 
+    def closed_loop(K_s: NDArray) -> NDArray:
+        return np.linalg.eigvals(A_s - B_s @ K_s)
+
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
     P_s, K_s, k, resets, converged, residual, history, why = value_iteration_loop(
         riccati_map,
@@ -295,12 +349,14 @@ def value_iteration(
         bounds or BoundSchedule(),
         tol,
         max_iterations,
+        closed_loop=closed_loop,
+        rule=rule,
     )
     K_s = RinvBt @ P_s
     message = (
         f"converged in {k} iterations ({resets} resets)"
         if converged
-        else f"not converged after {k} iterations: {why} (tol {tol:g})"
+        else f"not converged after {k} iterations: {why}"
     )
     return VIResult(
         K=sc.unscale_K(K_s),

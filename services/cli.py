@@ -9,9 +9,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import json
+import math
 import sys
 import time
-from typing import Any
+import warnings
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -58,6 +60,71 @@ def cmd_check(args: argparse.Namespace) -> int:
     return EXIT_OK if report.ok else EXIT_FAIL
 
 
+# the learning settings each method uses (ddvi_core.learning_config.LearningConfig)
+_ITERATION_KEYS = ("time_unit", "state_scale", "step", "step_size", "bounds", "bound_base",
+                   "stopping", "tol", "max_iterations")  # fmt: skip
+_SETTINGS_USED = {
+    "lqr": (),
+    "pi": ("K0",),
+    "vi": _ITERATION_KEYS,
+}
+
+
+def learning_settings(system: Any, method: str) -> dict[str, dict[str, Any]]:
+    """Every learning setting ``method`` uses on ``system``: {key: {"value", "source"}}, the
+    source "given" (the system file's [learning]), "derived" (from the system,
+    ddvi_core.defaults), "default" or "scenario" (a built-in's tuned table)."""
+    from ddvi_core.learning_config import SYSTEM_FILE_LEARNING_KEYS
+    from ddvi_core.systems import BUILTIN_SYSTEMS
+
+    keys = _SETTINGS_USED.get(method, SYSTEM_FILE_LEARNING_KEYS)
+    builtin = system.name in BUILTIN_SYSTEMS and not system.derived
+    out = {}
+    for key in keys:
+        value = getattr(system.learning, key)
+        if key in system.derived:
+            source = "derived"
+        elif builtin:
+            source = "scenario"
+        else:
+            source = "given" if key in system.given else "default"
+        if isinstance(value, tuple):
+            value = np.asarray(value, dtype=float).tolist()
+        out[key] = {"value": value, "source": source}
+    return out
+
+
+def _print_learned(system: Any, sol: Any, out: dict[str, Any]) -> None:
+    """The human form of ``ddvi learn``'s result ``out``."""
+    np.set_printoptions(precision=6, linewidth=110)
+    timing = f"in {out['wall_s']:.3f} s"
+    if "learning_s" in out:
+        timing = f"in {out['learning_s']:.3f} s of learning ({out['data_s']:.3f} s of data)"
+    state = "converged" if sol.converged else "NOT converged"
+    print(f"{system.name} by {sol.method}: {state} after {sol.iterations} iterations {timing}")
+    print("K =\n" + str(sol.K))
+    if sol.L.size:
+        print("L =\n" + str(sol.L))
+    print("P =\n" + str(sol.P))
+    for key in ("K_error", "L_error"):
+        if key in out:
+            print(f"{key} against the Riccati solution: {out[key]:.3e}")
+    keys = ("resets", "rank", "rank_needed", "condition", "residual", "intervals",
+            "initial_gain", "message")  # fmt: skip
+    for key in keys:
+        if key in out:
+            print(f"{key}: {out[key]}")
+    if out["settings"]:
+        print("settings (learning.KEY = value, source):")
+        for key, setting in out["settings"].items():
+            value = setting["value"]
+            if isinstance(value, list):
+                value = np.array2string(np.asarray(value), precision=6, separator=", ")
+            elif isinstance(value, float):
+                value = f"{value:.6g}"
+            print(f"  {key} = {value} ({setting['source']})")
+
+
 def cmd_learn(args: argparse.Namespace) -> int:
     from ddvi_core.learning import LearningError
     from ddvi_core.lqr import NotStabilisingError
@@ -88,33 +155,13 @@ def cmd_learn(args: argparse.Namespace) -> int:
         if isinstance(val, np.ndarray):
             val = [str(v) for v in val] if np.iscomplexobj(val) else val.tolist()
         out[key] = val
+    out["settings"] = learning_settings(system, args.method)
+    if args.seed is not None and "seed" in out["settings"]:
+        out["settings"]["seed"] = {"value": args.seed, "source": "--seed"}
     if args.json:
         print(json.dumps(out))
     else:
-        np.set_printoptions(precision=6, linewidth=110)
-        print(
-            f"{system.name} by {sol.method}: {'converged' if sol.converged else 'NOT converged'}"
-            f" after {sol.iterations} iterations in {wall:.3f} s"
-        )
-        print("K =\n" + str(sol.K))
-        if sol.L.size:
-            print("L =\n" + str(sol.L))
-        print("P =\n" + str(sol.P))
-        for key in ("K_error", "L_error"):
-            if key in out:
-                print(f"{key} against the Riccati solution: {out[key]:.3e}")
-        for key in (
-            "resets",
-            "rank",
-            "rank_needed",
-            "condition",
-            "residual",
-            "intervals",
-            "initial_gain",
-            "message",
-        ):
-            if key in out:
-                print(f"{key}: {out[key]}")
+        _print_learned(system, sol, out)
     return EXIT_OK if sol.converged else EXIT_FAIL
 
 
@@ -141,7 +188,7 @@ def _learn_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("system", help="built-in scenario name or TOML system file")
     p.add_argument("--method", choices=METHODS, default="ddvi")
-    p.add_argument("--seed", type=int, default=None, help="exploration seed (ddvi)")
+    p.add_argument("--seed", type=seed, default=None, help="exploration seed (ddvi)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_learn)
 
@@ -202,11 +249,25 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.set_defaults(func=sweep_command)
 
 
+def _campaign_arguments(p: argparse.ArgumentParser) -> None:
+    from services.ground.campaign import add_campaign_arguments, campaign_command
+
+    add_campaign_arguments(p)
+    p.set_defaults(func=campaign_command)
+
+
 def _fault_arguments(p: argparse.ArgumentParser) -> None:
     from services.ground.faults import add_fault_arguments, fault_command
 
     add_fault_arguments(p)
     p.set_defaults(func=fault_command)
+
+
+def _report_arguments(p: argparse.ArgumentParser) -> None:
+    from services.ground.recover import add_report_arguments, report_command
+
+    add_report_arguments(p)
+    p.set_defaults(func=report_command)
 
 
 def _netns_arguments(p: argparse.ArgumentParser) -> None:
@@ -225,16 +286,89 @@ COMMANDS: dict[str, tuple[str, Any]] = {
     "run": ("run a deployment: every service its own process on Zenoh", _run_arguments),
     "bench": ("benchmarks, each against its baseline in the same run", _bench_arguments),
     "monitor": ("print decoded messages of a running deployment", _monitor_arguments),
-    "sweep": ("the mission over link delays or loss rates: a table and a plot", _sweep_arguments),
+    "sweep": (
+        "the mission over link delays, loss rates, or navigation noise and model mismatch: "
+        "a table and a plot",
+        _sweep_arguments,
+    ),
+    "campaign": (
+        "a Monte Carlo campaign of missions on Dask: a table and a report",
+        _campaign_arguments,
+    ),
     "fault": ("inject a fault into a running deployment", _fault_arguments),
     "netns": ("create or remove a deployment's [[host]] network namespaces", _netns_arguments),
+    "report": (
+        "write a run's report again from its recording, recovering one cut short",
+        _report_arguments,
+    ),
 }
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse's parser, whose usage error is one line on stderr (and exit 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def seed(text: str) -> int:
+    """A seed argument: an integer in 0 .. 2**32 - 1 (numpy's seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"a seed lies in 0 .. 2**32 - 1, got {value}")
+    return value
+
+
+def non_finite_argument(args: argparse.Namespace) -> str | None:
+    """The first option given a non-finite number (nan, inf), said in one line, or None."""
+    for key, value in vars(args).items():
+        values = value if isinstance(value, list | tuple) else [value]
+        bad = [v for v in values if isinstance(v, float) and not math.isfinite(v)]
+        if bad:
+            return f"--{key.replace('_', '-')}: expected finite numbers, got {bad[0]}"
+    return None
+
+
+NUMERIC_ERRORS = (ArithmeticError, ValueError)
+"""What a system's numbers can raise in ``ddvi check`` and ``ddvi learn`` (an overflow, a
+singular matrix: numpy's LinAlgError is a ValueError): bad input, said in one line."""
+
+
+def _run_system_command(args: argparse.Namespace) -> int:
+    """``ddvi check`` or ``ddvi learn``: a system whose numbers cannot be used is one line
+    (the numeric warnings on the way there are dropped; a command that succeeds shows them)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            status = int(args.func(args))
+        except NUMERIC_ERRORS as exc:
+            print(f"ddvi {args.command}: {args.system}: its numbers cannot be used "
+                  f"({type(exc).__name__}: {exc}); give finite entries of moderate size",
+                  file=sys.stderr)  # fmt: skip
+            return EXIT_USAGE
+    for w in caught:
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return status
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    """The command's exit status; Ctrl-C is one line (no traceback)."""
+    try:
+        if args.command in ("check", "learn"):
+            return _run_system_command(args)
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        print(f"ddvi {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The ``ddvi`` parser; with ``command``, only that command's arguments are built (the
     others are listed by name and help alone)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="ddvi", description="Data-driven value iteration for spacecraft rendezvous."
     )
     sub = parser.add_subparsers(dest="command", required=True)
@@ -252,7 +386,10 @@ def main(argv: list[str] | None = None) -> int:
         print(why, file=sys.stderr)
         return EXIT_USAGE
     args = build_parser(command if command in COMMANDS else None).parse_args(argv)
-    return int(args.func(args))
+    if (why := non_finite_argument(args)) is not None:
+        print(f"ddvi {args.command}: {why}", file=sys.stderr)
+        return EXIT_USAGE
+    return _run_command(args)
 
 
 if __name__ == "__main__":

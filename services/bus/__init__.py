@@ -1,6 +1,8 @@
 """The bus substrate: Zenoh sessions and their settings (``session``), the endpoint every
 service publishes and subscribes through (``endpoint``: sequence numbers, batching), its replay
-guards (``guards``), link impairment models (``links``) and liveliness (``liveliness``).
+guards (``guards``), link impairment models (``links``), liveliness (``liveliness``), and
+security: credentials, access control from the topology and TLS material (``security``,
+``tls``).
 
 May import: ``services.interface``, zenoh, numpy. Not configuration, models or processes.
 """

@@ -28,7 +28,7 @@ from typing import Any
 
 import zenoh
 
-from services.bus.guards import SEQUENCE_REASONS, SequenceGuards
+from services.bus.guards import ORIGIN_REASONS, SEQUENCE_REASONS, SequenceGuards, check_origin
 from services.bus.links import CLOCKS, LinkModel, LinkRule, rule_latency, select_rule
 from services.bus.session import check_name, key_prefix
 from services.interface import (
@@ -48,6 +48,10 @@ log = logging.getLogger("ddvi.bus")
 
 MSGPACK_ENCODING = "application/msgpack"
 _LINK_COUNTERS = ("dropped", "duplicated", "reordered", "delayed")
+_ORIGIN_TEXT = {
+    "src": "not this topic's publisher",
+    "time": "a time outside the mission's window",
+}
 
 Handler = Callable[[str, Message], None]
 """A subscription handler: ``handler(topic, message)``, topic relative to ``ddvi/<run>/``."""
@@ -109,7 +113,9 @@ class Bus:
     the deployment's link rules at this subscriber (``Deployment.links_for``): each received
     message goes through the model of the first rule matching its publisher and topic, on
     ``link_clock`` ("sim": the time given to ``pump``; "wall": ``time.monotonic()``), one model
-    per publisher, seeded from ``seed``.
+    per publisher, seeded from ``seed``.  A received message whose ``src`` is not its topic's
+    publisher per the topology, or whose time lies outside ``time_window`` (earliest, latest
+    simulation time, s; None: not checked), is refused (``guards.check_origin``).
     """
 
     def __init__(
@@ -120,6 +126,7 @@ class Bus:
         links: Iterable[LinkRule] = (),
         link_clock: str = "sim",
         seed: int = 0,
+        time_window: tuple[float, float] | None = None,
     ) -> None:
         if link_clock not in CLOCKS:
             raise ValueError(f"link_clock: expected one of {CLOCKS}, got {link_clock!r}")
@@ -143,6 +150,8 @@ class Bus:
         )
         self._counts.update({f"rejected.{r}": 0 for r in sorted(REASONS)})
         self._counts.update({f"rejected.{r}": 0 for r in SEQUENCE_REASONS})
+        self._counts.update({f"rejected.{r}": 0 for r in ORIGIN_REASONS})
+        self.time_window = time_window
         self._rules = list(links)
         self._link_clock, self._seed = link_clock, seed
         self._rule_cache: dict[tuple[str, str], int | None] = {}
@@ -333,12 +342,19 @@ class Bus:
         messages = []
         for payload in payloads:  # one bad part costs that part only
             try:
-                messages.append(decode(payload, route.expected))
+                message = decode(payload, route.expected)
             except MessageError as err:
                 self._reject(key, err.reason, str(err))
+                continue
             except Exception:
                 self._count("handler_errors")
                 log.exception("%s: error decoding on %s", self.service, topic)
+                continue
+            if (why := check_origin(message, topic, self.time_window)) is not None:
+                self._reject(key, why, f"seq {message.seq} from {message.src!r} at t = "
+                             f"{message.t:g}: " + _ORIGIN_TEXT[why])  # fmt: skip
+                continue
+            messages.append(message)
         if not messages:
             return
         try:

@@ -1,16 +1,44 @@
-"""Replay guards: the anti-replay window a subscriber keeps per (publisher, topic), so each
-message is delivered once whatever the link or an attacker repeats."""
+"""Receiver guards: the anti-replay window a subscriber keeps per (publisher, topic), so each
+message is delivered once whatever the link or an attacker repeats; and the origin check
+(``check_origin``), so that a message is taken only from its topic's owner and only for a time
+inside the mission's window."""
 
 from __future__ import annotations
 
 import math
 
 from services.interface import Message
+from services.interface.topics import may_publish
 
 REPLAY_WINDOW = 256
 """Sequence numbers a subscriber remembers per (publisher, topic) to reject duplicates."""
 SEQUENCE_REASONS = ("duplicate", "stale")
 """Why a well-formed message is refused by its sequence number (see ``SequenceGuard``)."""
+ORIGIN_REASONS = ("src", "time")
+"""Why a well-formed message is refused by its origin (see ``check_origin``)."""
+TIME_FIELDS = ("for_t",)
+"""Body fields that are simulation times, checked against the time window as ``t`` is."""
+
+
+def check_origin(
+    message: Message, topic: str, window: tuple[float, float] | None = None
+) -> str | None:
+    """None (accept) or why ``message`` on ``topic`` is refused: ``"src"`` when its header
+    ``src`` is not the topic's publisher per the topology (``may_publish``; a topic outside the
+    topology has no owner to check), ``"time"`` when its ``t`` or a body time (``TIME_FIELDS``,
+    e.g. a command's ``for_t``) lies outside ``window = (earliest, latest)`` s: a message "for"
+    a time the mission never reaches must not make the genuine traffic look stale."""
+    if may_publish(message.src, topic) is False:
+        return "src"
+    if window is not None:
+        lo, hi = window
+        if not lo <= message.t <= hi:
+            return "time"
+        for key in TIME_FIELDS:
+            value = message.body.get(key)
+            if value is not None and not lo <= value <= hi:
+                return "time"
+    return None
 
 
 class SequenceGuard:

@@ -13,6 +13,11 @@ connects to them directly. A service started before the hub keeps retrying its c
 ``BusSettings.hub()`` turns a service's settings into the hub's. Client mode (services connect to a
 router, which relays) is the option for multi-host deployments.
 
+That peer mesh is the insecure bus (``[bus] security = false``). A secure run (the default;
+``services.bus.security``, docs/security.md) is client mode on a router that authenticates each
+session (``user``/``password``, the router's ``dictionary``) and enforces ``access_control``;
+links to other hosts are TLS (``tls``).
+
 Keys are ``ddvi/<run>/<topic>`` (``key_prefix(run)`` + a topic of ``services.interface.topics``).
 """
 
@@ -23,6 +28,7 @@ import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Any
 
 import zenoh
 
@@ -46,6 +52,13 @@ class BusSettings:
     mode: str = "peer"
     listen: list[str] = field(default_factory=lambda: [EPHEMERAL_LOOPBACK])
     connect: list[str] = field(default_factory=lambda: [DEFAULT_HUB])
+    # authentication (services.bus.security): this session's user and password; a router's
+    # ``dictionary`` file of every user's; its ``access_control`` block; TLS files by key
+    user: str = ""
+    password: str = field(default="", repr=False)
+    dictionary: str = ""
+    access_control: dict[str, Any] | None = field(default=None, repr=False)
+    tls: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -92,6 +105,15 @@ def zenoh_config(settings: BusSettings) -> zenoh.Config:
     # Retry a not-yet-listening hub quickly, so start-up order does not matter.
     retry = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2.0}
     config.insert_json5("connect/retry", json.dumps(retry))
+    if settings.user:
+        usrpwd = {"user": settings.user, "password": settings.password}
+        if settings.dictionary:
+            usrpwd["dictionary_file"] = settings.dictionary
+        config.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
+    if settings.access_control is not None:
+        config.insert_json5("access_control", json.dumps(settings.access_control))
+    if settings.tls:
+        config.insert_json5("transport/link/tls", json.dumps(settings.tls))
     return config
 
 

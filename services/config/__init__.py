@@ -1,6 +1,6 @@
-"""Deployments: the typed deployment (``deployment``), its semantic checks (``validation``) and
-its files (``files``); the strict TOML reader they use is ``ddvi_core.tables``.  A deployment
-is data: reading one starts nothing.
+"""Deployments: the typed deployment (``deployment``), its semantic checks (``validation``; the
+physical range of every number: ``ranges``) and its files (``files``); the strict TOML reader
+they use is ``ddvi_core.tables``.  A deployment is data: reading one starts nothing.
 
 May import: ``ddvi_core``, ``services.bus`` (its link model). Not models, processes or tools.
 """

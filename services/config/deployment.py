@@ -64,6 +64,9 @@ class Bus:
     mode: str = "peer"
     port: int = 0  # the hub's loopback port; 0 picks a free one
     connect: list[str] = field(default_factory=list)  # extra endpoints (a router elsewhere)
+    # authenticated clients of the launcher's router, access control from the topology
+    # (docs/security.md); false: the insecure bus of ``mode``, said so by the launcher
+    security: bool = True
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,8 @@ class Navigation:
     position_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     velocity_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     seed: int = 0
+    filter: str = "kalman"  # "kalman" (ddvi_core.navfilter) or "none" (the raw measurement)
+    acceleration_noise: float = 3e-5  # m/s^2, the filter's unmodelled acceleration, 1-sigma
 
 
 MISSION_LEARNING: dict[str, Any] = {
@@ -148,6 +153,18 @@ DEPUTY_LEARNING_KEYS = (
     "relearn_max_attempts",
     "detector_bound",
     "detector_window_orbits",
+    "method",
+    "data_from_orbits",
+    "fit_stride",
+    "fit_smoothing",
+    "fit_tolerance",
+    "fit_deadline_orbits",
+    "fit_deadline_tolerance",
+    "refresh_orbits",
+    "trim_orbits",
+    "station_radius",
+    "trim_gain",
+    "density_exostate",
 )
 """The keys a deputy's learning table may give (the sample and command periods, the state and
 exostate and the iteration's units come from the rest of the deployment)."""

@@ -94,7 +94,14 @@ def load_deployment(name_or_path: str | None) -> Deployment:
     """The checked Deployment of a file by name or path (see :func:`resolve`)."""
     path = resolve(name_or_path)
     try:
-        table = tomllib.loads(path.read_text())
+        table = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise DeploymentError(f"{path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError as exc:  # a binary file, or text in another encoding
+        raise DeploymentError(
+            f"{path}: not a UTF-8 text file (byte {exc.start}: {exc.reason}); a deployment "
+            "is TOML text"
+        ) from None
+    except OSError as exc:
+        raise DeploymentError(f"{path}: cannot read it ({exc.strerror})") from None
     return deployment_from_table(table, str(path))

@@ -24,6 +24,7 @@ from services.config.deployment import (
     Deputy,
     Fault,
 )
+from services.config.ranges import check_ranges
 
 __all__ = ["CHECKS", "check_panel", "deployment_from_table", "validate"]
 
@@ -100,9 +101,13 @@ def _check_deputy_craft(w: str, d: Deputy) -> None:
         raise DeploymentError(f"{w}.attitude_limit: expected 0 < limit <= 1 (MRP)")
 
 
+NAV_FILTERS = ("kalman", "none")
+"""navigation.filter: a Kalman filter on the Hill state (ddvi_core.navfilter), or none."""
+
+
 def _check_deputy_navigation(w: str, d: Deputy, dep: Deployment) -> None:
     """A deputy's navigation period (between run.nav_period and run.fsw_period, dividing
-    both), noise, frame and biases."""
+    both), noise, frame, biases and filter."""
     nav, r = d.navigation, dep.run
     _multiple(f"{w}.navigation.period", nav.period, r.nav_period, "run.nav_period")
     _multiple("run.fsw_period", r.fsw_period, nav.period, f"{w}.navigation.period")
@@ -114,6 +119,18 @@ def _check_deputy_navigation(w: str, d: Deputy, dep: Deployment) -> None:
     for key in ("position_bias", "velocity_bias"):
         if len(getattr(nav, key)) != 3:
             raise DeploymentError(f"{w}.navigation.{key}: expected 3 values")
+    if nav.filter not in NAV_FILTERS:
+        raise DeploymentError(
+            f"{w}.navigation.filter: {nav.filter!r} is not one of {list(NAV_FILTERS)}"
+        )
+    if not (math.isfinite(nav.acceleration_noise) and nav.acceleration_noise > 0):
+        raise DeploymentError(
+            f"{w}.navigation.acceleration_noise: must be a positive number of m/s^2 "
+            f"(default 3e-5), got {nav.acceleration_noise}"
+        )
+
+
+LEARNING_METHODS = ("value-iteration", "model-fit")
 
 
 def _check_deputy_learning(w: str, d: Deputy) -> None:
@@ -133,6 +150,23 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
         raise DeploymentError(f"{where}.relearn_settle_orbits: must be >= 0")
     if lrn.relearn_max_attempts < 1:
         raise DeploymentError(f"{where}.relearn_max_attempts: must be >= 1")
+    _one_of(f"{where}.method", lrn.method, LEARNING_METHODS)
+    if not 0 <= lrn.data_from_orbits < lrn.learn_at_orbits:
+        raise DeploymentError(f"{where}.data_from_orbits: must lie in [0, learn_at_orbits)")
+    _multiple(f"{where}.fit_stride", lrn.fit_stride, d.navigation.period, f"{w}.navigation.period")
+    if not (math.isfinite(lrn.fit_smoothing) and 0 <= lrn.fit_smoothing <= lrn.interval):
+        raise DeploymentError(f"{where}.fit_smoothing: must lie in [0, interval] s")
+    _positive(f"{where}.fit_tolerance", lrn.fit_tolerance)
+    _positive(f"{where}.fit_deadline_tolerance", lrn.fit_deadline_tolerance)
+    if not (math.isfinite(lrn.fit_deadline_orbits) and lrn.fit_deadline_orbits >= 0):
+        raise DeploymentError(f"{where}.fit_deadline_orbits: must be >= 0 (0 = no deadline)")
+    if not (math.isfinite(lrn.refresh_orbits) and lrn.refresh_orbits >= 0):
+        raise DeploymentError(f"{where}.refresh_orbits: must be >= 0 (0 = no refresh)")
+    if not (math.isfinite(lrn.trim_orbits) and lrn.trim_orbits >= 0):
+        raise DeploymentError(f"{where}.trim_orbits: must be >= 0 (0 = no trim)")
+    _positive(f"{where}.station_radius", lrn.station_radius)
+    if not 0 < lrn.trim_gain <= 1:
+        raise DeploymentError(f"{where}.trim_gain: must lie in (0, 1]")
     if lrn.K0 is None or len(lrn.K0) != 1 or len(lrn.K0[0]) != 4:
         raise DeploymentError(f"{where}.K0: expected 4 values (gain on x, y, xdot, ydot)")
     if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):
@@ -308,6 +342,7 @@ def check_hosts(dep: Deployment) -> None:
 
 
 CHECKS: tuple[Callable[[Deployment], None], ...] = (
+    check_ranges,  # first: every number finite and physical (services.config.ranges)
     check_run,
     check_bus,
     check_environment,

@@ -5,7 +5,11 @@ controller service (``services.flight.controller``) and the one-process baseline
 Modes: ``lqr`` flies u = -K x + L v with gains from the nominal linear model.  ``ddvi`` flies
 u = -K0 x + eta(t) (K0 need not stabilise; eta a multi-sine inside the attitude limit), feeds
 every navigation sample to ddvi_core's IntervalCollector, runs data-driven value iteration at
-the configured time and switches to the learned K, L.  With ``learning.relearn`` it then
+the configured time and switches to the learned K, L (``learning.method = "model-fit"``:
+ddvi_core.model_fit's first-order interval fit and the Riccati and regulator equations on the
+fitted model instead (services.flight.fitting), retried on a growing window until the gain's
+predicted error is small, its feedforward's constant trimmed on station by the mean
+along-track error (services.flight.trim)).  With ``learning.relearn`` it then
 watches its own data for a change of the plant (an actuator fault: ddvi_core.detection's
 one-step predictor, fitted on the data it learned from, and the one-orbit mean of its
 input-equivalent residual against the bound it states in its log); on a detection it explores
@@ -28,6 +32,7 @@ import collections
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -35,10 +40,14 @@ import scipy.linalg
 from ddvi_core.constants import R_EARTH
 from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
+from ddvi_core.model_fit import IntegralHistory, fit_exosystem_input
 from ddvi_core.models import drag_allocation
+from ddvi_core.regulator import InfeasibleError, feedforward_gain, solve_regulator_equations
 from ddvi_core.simulate import Exploration
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.config import Deployment
+from services.flight.fitting import POSITIONS, fit_attempt
+from services.flight.trim import StationTrim
 from services.interface import command_topic
 from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
 
@@ -76,9 +85,6 @@ class Controller:
                 np.geomspace(0.3 * self.n_rate, 30 * self.n_rate, 6)
             )
             self.exploration = Exploration(lrn.exploration_amplitude, freqs, lrn.seed)
-            self.collector = IntervalCollector(
-                4, 1, self.problem.q, lrn.interval, max_gap=3 * self.deputy.navigation.period
-            )
             self.learn_at = lrn.learn_at_orbits * orbit_period(dep)
             self.next_attempt = self.learn_at
         # a command issued at T acts from the environment's first step at or after T + this
@@ -94,7 +100,8 @@ class Controller:
         self.converged = self.mode == "lqr"
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
-        self.collect_from = 0.0  # samples before this are not the learner's (see rejoin)
+        # samples before this are not the learner's (the initial transient; see rejoin)
+        self.collect_from = self.deputy.learning.data_from_orbits * orbit_period(dep)
         self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
         self.learn_attempts = 0
         # change detection (learning.relearn): the samples the learner collects (t, x, u, v),
@@ -107,13 +114,35 @@ class Controller:
         # learner_exostate; a fallback restores the old one): (C, E, F) of the exosystem the
         # learner and L work with
         self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
+        if lrn.density_exostate:  # from the start: craft that may differ (learning.density_...)
+            self.exosystem = density_exosystem(*self.exosystem)
+        if self.mode != "lqr":
+            self.L = np.zeros((1, self.exosystem[1].shape[0]))
+            self.collector = self.new_collector()
         self.learned_at: list[float] = []  # every switch to learned gains (s)
+        # model fit with learning.refresh_orbits: the running integrals flown on the learned
+        # gains, from which the feedforward is refitted (refresh_feedforward), and when next
+        self.refresh: IntegralHistory | None = None
+        self.next_refresh = math.inf
+        self.trim: StationTrim | None = None  # model fit with learning.trim_orbits
         # while re-learning: what was flown before the detection (K, L, exosystem, when
         # learned, and the collector and rank that learned them), flown again if re-learning
         # fails relearn_max_attempts times; and the count of failures
         self.before_relearning: tuple | None = None
         self.relearn_failures = 0
         self.abandoned_at: list[float] = []  # every return to the old gains (s)
+
+    def new_collector(self) -> IntervalCollector | IntegralHistory:
+        """An empty store for the learner's data, for the exostate in force: the interval
+        integrals of value iteration, or the running integrals of the model fit (at most
+        ``window_orbits`` of samples kept when a window is set)."""
+        lrn, q = self.deputy.learning, self.exosystem[1].shape[0]
+        nav = self.deputy.navigation.period
+        if lrn.method == "model-fit":
+            window = lrn.window_orbits * orbit_period(self.dep) if lrn.window_orbits > 0 else 1e6
+            return IntegralHistory(4, 1, q, lrn.interval, lrn.fit_stride, max_gap=3 * nav,
+                                   max_samples=math.ceil(window / nav) + 2)  # fmt: skip
+        return IntervalCollector(4, 1, q, lrn.interval, max_gap=3 * nav)
 
     def initial_gain(self) -> np.ndarray:
         """K0 (1, 4), the gain a learner explores on (the deployment gives 4 values)."""
@@ -201,6 +230,11 @@ class Controller:
             learn_log = self.learn(t)
         elif self.phase == "learned" and self.detector is not None and self.detector.alarm:
             learn_log = self.start_relearning(t)
+        elif self.phase == "learned" and self.refresh is not None and t >= self.next_refresh:
+            learn_log = self.refresh_feedforward(t)
+        elif self.phase == "learned" and self.trim is not None and self.trim.due(t):
+            delta, learn_log = self.trim.update(t, float(self.K[0, 1]))
+            self.L[0, 0] += delta
         self.command(t, x, v, altitude)
         return learn_log
 
@@ -228,12 +262,9 @@ class Controller:
         self.phase, self.converged, self.detector = "relearning", False, None
         self.source = "initial"  # flying K0 again until it re-learns
         if not self.density_mode:
-            C, E, F = self.exosystem
-            F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
-            self.exosystem = (C, scipy.linalg.block_diag(E, 0.0), F_rho)
-        q = self.exosystem[1].shape[0]
-        self.K, self.L = self.initial_gain(), np.zeros((1, q))
-        self.collector = IntervalCollector(4, 1, q, lrn.interval, max_gap=self.collector.max_gap)
+            self.exosystem = density_exosystem(*self.exosystem)
+        self.K, self.L = self.initial_gain(), np.zeros((1, self.exosystem[1].shape[0]))
+        self.collector = self.new_collector()
         self.learning_samples.clear()
         period = orbit_period(self.dep)
         self.relearn_since = self.collect_from = t + lrn.relearn_settle_orbits * period
@@ -266,6 +297,14 @@ class Controller:
         """While exploring, feed the collector the sample with the input acting on the plant
         from t on (``input_acting``); returns why the collector refused it, if it did.  Once
         learned, feed the change detector (if armed) instead."""
+        on_station = abs(float(x[1]) - self.deputy.y_ref) <= self.deputy.learning.station_radius
+        if self.refresh is not None and self.phase == "learned" and on_station:
+            try:  # the gaps off station split the data (no interval spans one)
+                self.refresh.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
+            except LearningError as exc:
+                return f"sample at t = {t} rejected: {exc}"
+        if self.trim is not None and self.phase == "learned":
+            self.trim.add(t, float(x[1]) - self.deputy.y_ref)
         if self.phase == "learned" and self.detector is not None:
             self.detector.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
             return None
@@ -334,57 +373,117 @@ class Controller:
             f"{np.array2string(predictor.residual_rms, precision=3)})"
         )
 
-    def learn(self, t: float) -> str:
-        """Run data-driven value iteration on the data so far; switch gains on success."""
-        lrn, pr = self.deputy.learning, self.problem
+    def learning_window(self, t: float) -> float:
+        """The first sample time (s) an attempt at t learns from: while re-learning, the
+        newest window since settling; else the last ``window_orbits`` (0: all the data, a
+        window that grows with every retry)."""
+        lrn, period = self.deputy.learning, orbit_period(self.dep)
+        if self.relearn_since is not None:
+            return max(self.relearn_since, t - lrn.relearn_window_orbits * period)
+        return t - lrn.window_orbits * period if lrn.window_orbits > 0 else -math.inf
+
+    def run_learner(self, since: float) -> tuple[Any, dict, str | None]:
+        """Learn from the data at or after ``since``: (the result with K, L; what the
+        learning log reports; why it did not converge, or None).  Raises LearningError."""
+        lrn, pr, n = self.deputy.learning, self.problem, self.n_rate
         C, E, F = self.exosystem
-        n = self.n_rate
+        translation = [0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None
+        data = self.collector.data().since(since)
+        if lrn.method == "model-fit":
+            return self.fit_model(data, translation)
+        r = learn_from_data(
+            data, pr.Q, pr.R, time_unit=n, C=C, E=E, F=F,
+            steps=StepSequence(lrn.step, lrn.step_size),
+            bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
+            tol=lrn.tol, max_iterations=lrn.max_iterations,
+            state_scale=[1.0, 1.0, n, n], translation=translation,
+        )  # fmt: skip
+        self.rank, self.rank_needed = r.rank, r.rank_needed
+        info = {"condition": r.condition, "residual": r.residual, "intervals": r.intervals,
+                "iterations": r.iterations}  # fmt: skip
+        return r, info, None if r.converged else r.message
+
+    def fit_model(self, data: Any, translation: list | None) -> tuple[Any, dict, str | None]:
+        """The model-fit learner on ``data`` (IntegralData), as ``run_learner``
+        (services.flight.fitting): with the tolerance in force for the attempt due now."""
+        lrn = self.deputy.learning
+        deadline = lrn.fit_deadline_orbits * orbit_period(self.dep)
+        late = lrn.fit_deadline_orbits > 0 and self.next_attempt >= deadline - 1e-6
+        tolerance = lrn.fit_deadline_tolerance if late else lrn.fit_tolerance
+        r, info, why = fit_attempt(data, lrn, self.problem, self.exosystem, translation, tolerance)
+        self.rank, self.rank_needed = info["rank"], info["needed"]
+        return r, info, why
+
+    def learn(self, t: float) -> str:
+        """Run the deployment's learner on the data so far; switch gains on success."""
+        lrn = self.deputy.learning
         t0 = time.perf_counter()
         self.learn_attempts += 1
-        since = -math.inf
-        if self.relearn_since is not None:  # re-learning: the newest window since settling
-            since = max(self.relearn_since, t - lrn.relearn_window_orbits * orbit_period(self.dep))
-        elif lrn.window_orbits > 0:
-            since = t - lrn.window_orbits * orbit_period(self.dep)
+        since = self.learning_window(t)
         try:
-            data = self.collector.data().since(since)
-            r = learn_from_data(
-                data,
-                pr.Q,
-                pr.R,
-                time_unit=n,
-                C=C,
-                E=E,
-                F=F,
-                steps=StepSequence(lrn.step, lrn.step_size),
-                bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
-                tol=lrn.tol,
-                max_iterations=lrn.max_iterations,
-                state_scale=[1.0, 1.0, n, n],
-                translation=[0.0, 1.0, 0.0, 0.0] if lrn.along_track_reference else None,
-            )
+            r, info, not_converged = self.run_learner(since)
         except LearningError as exc:
             return self.learning_failed(t, f"learning at t = {t:.0f} s failed: {exc}")
-        self.rank, self.rank_needed = r.rank, r.rank_needed
-        if not r.converged:
+        if not_converged is not None:
             return self.learning_failed(t, f"learning at t = {t:.0f} s did not converge "
-                                        f"({r.message})")  # fmt: skip
+                                        f"({not_converged})")  # fmt: skip
         self.K, self.L = r.K, r.L
         self.result = r
         relearned = self.relearn_since is not None
-        self.phase, self.source = "learned", "ddvi"
-        self.iteration, self.converged = r.iterations, True
+        self.phase = "learned"
+        self.source = "model-fit" if lrn.method == "model-fit" else "ddvi"
+        self.iteration, self.converged = info.get("iterations", 0), True
         self.relearn_since = self.before_relearning = None
         self.learned_at.append(t)
-        self.learn_info = {
-            "wall_s": time.perf_counter() - t0,
-            "condition": r.condition,
-            "residual": r.residual,
-            "intervals": r.intervals,
-        }
+        self.learn_info = {"wall_s": time.perf_counter() - t0, **info}
         armed = self.arm_detector(since) if lrn.relearn else ""
+        if lrn.method == "model-fit" and lrn.refresh_orbits > 0:
+            period = lrn.refresh_orbits * orbit_period(self.dep)
+            self.refresh = self.new_collector()
+            self.next_refresh = t + 2 * period
+        if lrn.method == "model-fit" and lrn.trim_orbits > 0:
+            period = lrn.trim_orbits * orbit_period(self.dep)
+            self.trim = StationTrim(period, lrn.station_radius, lrn.trim_gain, start=t)
+        how = (
+            f"by a model fit (condition {info['condition']:.3g}, relative residual "
+            f"{info['residual']:.3g}, predicted gain error {info['error']:.3g}, "
+            f"B = {info['B']})"
+            if lrn.method == "model-fit"
+            else f"in {self.iteration} iterations"
+        )
         return (
-            f"{'re-learned' if relearned else 'learned'} at t = {t:.0f} s from {r.intervals} "
-            f"intervals in {r.iterations} iterations ({self.learn_info['wall_s']:.2f} s): "
+            f"{'re-learned' if relearned else 'learned'} at t = {t:.0f} s from "
+            f"{info['intervals']} intervals {how} ({self.learn_info['wall_s']:.2f} s): "
             f"K = {r.K.ravel().tolist()}, L = {r.L.ravel().tolist()}{armed}"
         )
+
+    def refresh_feedforward(self, t: float) -> str:
+        """Refit the model fit's D, with its A and B held, on the data flown on the learned
+        gains on station (within ``station_radius`` of the slot; at most ``window_orbits``
+        of it), and fly the feedforward L = U + K X of the regulator equations on it: the drag
+        offset the exploration saw far behind the slot is not the one at the slot.  Returns
+        the log line; a refit that fails keeps the L in force."""
+        lrn, model = self.deputy.learning, self.result.model
+        C, E, F = self.exosystem
+        self.next_refresh = t + lrn.refresh_orbits * orbit_period(self.dep)
+        data = self.refresh.data().since(self.learning_window(t))
+        try:
+            D = fit_exosystem_input(data, model.A, model.B, length=lrn.interval,
+                                    stride=lrn.fit_stride, smoothing=lrn.fit_smoothing,
+                                    positions=POSITIONS)  # fmt: skip
+            X, U = solve_regulator_equations(model.A, model.B, C, D, E, F)
+        except (LearningError, InfeasibleError) as exc:
+            return f"feedforward refit at t = {t:.0f} s failed, L kept: {exc}"
+        self.L = feedforward_gain(self.K, X, U)
+        self.L[0, 0] += self.trim.total if self.trim is not None else 0.0
+        return (
+            f"feedforward refitted at t = {t:.0f} s from {data.samples} samples on the learned "
+            f"gains: D[:, 0] = {np.round(D[:, 0], 12).tolist()}, L = {self.L.ravel().tolist()}"
+        )
+
+
+def density_exosystem(C: np.ndarray, E: np.ndarray, F: np.ndarray) -> tuple:
+    """(C, E, F) of an exosystem extended by the density ratio: a mode E holds constant (its
+    row and column of E zero), which the reference F does not see."""
+    F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
+    return C, scipy.linalg.block_diag(E, 0.0), F_rho

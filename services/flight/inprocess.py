@@ -11,6 +11,7 @@ import numpy as np
 from ddvi_core.constants import R_EARTH
 from services.config import Deployment
 from services.flight.control import Controller
+from services.flight.navigation import navigation_filter
 from services.model import (
     IN_PLANE,
     duration,
@@ -28,11 +29,9 @@ def run_in_process(
     """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
     the controller object (final gains, phase) and its learning log lines.
 
-    ``timing``, if given, is filled with the wall seconds of each service's share of the work:
-    ``environment`` (the truth, the exostate), ``nav-<deputy>`` (navigation states, bias and
-    noise) and ``ctrl-<deputy>`` (the controller, learning included), and ``steps``, the
-    number of flight-software steps (the benchmarks' lock-step floor spends them in its
-    processes)."""
+    ``timing``, if given, gets the wall seconds of each service's share: ``environment``
+    (truth, exostate), ``nav-<deputy>`` (states, bias, noise, filter), ``ctrl-<deputy>``
+    (controller and learning), and ``steps``, the flight-software steps."""
     clock = time.perf_counter
     spent = dict.fromkeys(
         ["environment", *(f"{p}-{d.name}" for d in dep.deputy for p in ("nav", "ctrl"))], 0.0
@@ -47,6 +46,7 @@ def run_in_process(
     navs = [d.navigation for d in dep.deputy]
     biases = [np.array(nav.position_bias + nav.velocity_bias) for nav in navs]
     noises = [np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3) for nav in navs]
+    filters = [navigation_filter(dep, d) for d in dep.deputy]  # None: the measurement as is
 
     def sample(t: float, X: np.ndarray) -> None:
         t0 = clock()
@@ -60,6 +60,8 @@ def run_in_process(
             noisy = x6 + biases[i]
             if noises[i].any():  # as the navigation service: no draw without noise
                 noisy = noisy + rng.normal(0, 1, 6) * noises[i]
+            if filters[i] is not None:
+                noisy, _ = filters[i].update(t, noisy)
             altitude = float(np.linalg.norm(X[i + 1, :3])) - R_EARTH
             t1 = clock()
             outcome = c.on_sample(t, noisy[list(IN_PLANE)], v, altitude)

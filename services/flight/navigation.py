@@ -5,8 +5,10 @@ Inputs:  truth/chief, truth/<deputy> (truth); clock; fault/bias (fault: target =
          [[fault]] biases.
 Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
          [x, y, z, xdot, ydot, zdot], in the frame navigation.frame names (ddvi_core.relnav:
-         against the chief's path by default, or curvilinear Hill), at the configured rate,
-         with white noise and bias;
+         against the chief's path by default, or curvilinear Hill), at the configured rate:
+         the relative navigation filter's estimate (navigation.filter = "kalman",
+         ddvi_core.navfilter: HCW kinematics, no drag model) of the measurement, truth with
+         white noise and bias, or the measurement itself ("none"); with its covariance;
          stats/nav-<deputy>.
 """
 
@@ -19,14 +21,27 @@ import sys
 import numpy as np
 
 from ddvi_core.constants import R_EARTH
+from ddvi_core.navfilter import RelativeNavFilter
 from services.bus import queue_handler
+from services.config import Deployment, Deputy
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FaultQueue, FinalClock, SamplePairs
 from services.interface import CLOCK, Message, fault_topic, nav_state_topic, truth_topic
-from services.model import navigation_state, on_grid, orbit_period
+from services.model import mean_motion, navigation_state, on_grid, orbit_period
 
 BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
 """The params of a bias fault: position (m) and velocity (m/s) bias, in navigation's frame."""
+
+
+def navigation_filter(dep: Deployment, deputy: Deputy) -> RelativeNavFilter | None:
+    """The deputy's relative navigation filter as its deployment sets it (HCW at the chief's
+    mean motion, the measurement's sigmas, the unmodelled acceleration), or None for
+    ``navigation.filter = "none"``."""
+    nav = deputy.navigation
+    if nav.filter == "none":
+        return None
+    sigma = [nav.position_noise] * 3 + [nav.velocity_noise] * 3
+    return RelativeNavFilter(mean_motion(dep), sigma, nav.acceleration_noise, nav.period)
 
 
 def main(ctx: ServiceContext) -> int:
@@ -35,7 +50,8 @@ def main(ctx: ServiceContext) -> int:
 
 class NavigationService:
     """Pairs the chief's and the deputy's truth by time and publishes, on the navigation grid,
-    the deputy's relative state with the bias in force and white noise.
+    the deputy's relative state: the filter's estimate of the measurement (truth with the bias
+    in force and white noise) and its covariance.
 
     Parameters
     ----------
@@ -51,6 +67,9 @@ class NavigationService:
         self.rng = np.random.default_rng([ctx.deployment.run.seed, cfg.seed, sum(map(ord, sc))])
         self.sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
         self.bias = np.array(cfg.position_bias + cfg.velocity_bias)
+        self.filter = navigation_filter(ctx.deployment, self.deputy)  # None: publish z as is
+        self.R = np.diag(self.sigma**2)  # the covariance published without a filter
+        self.measured = np.zeros(6)  # the last measurement, before the filter
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
         # two subscriptions interleave arbitrarily, and samples are paired by time
@@ -139,8 +158,8 @@ class NavigationService:
         self.counters["unmatched"] += len(self.pairs.forget_before(horizon))
 
     def publish(self, t: float, chief: np.ndarray, deputy: np.ndarray) -> None:
-        """The navigation sample at t from the chief's and the deputy's inertial states (6,),
-        with the bias in force from t on and white noise."""
+        """The navigation sample at t from the chief's and the deputy's inertial states (6,):
+        the measurement (the bias in force from t on, white noise) through the filter."""
         sc = self.sc
         for fault in self.bias_faults.pop_due(t):
             self.bias = fault.value
@@ -150,8 +169,11 @@ class NavigationService:
         x = navigation_state(self.ctx.deployment, self.deputy, chief, deputy) + self.bias
         if self.sigma.any():
             x = x + self.rng.normal(0.0, 1.0, 6) * self.sigma
+        self.measured, cov = x, self.R
+        if self.filter is not None:
+            x, cov = self.filter.update(t, x)
         altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
-        body = {"sc": sc, "x_hill": x, "altitude": altitude, "valid": True}
+        body = {"sc": sc, "x_hill": x, "cov": cov, "altitude": altitude, "valid": True}
         self.ctx.bus.publish(nav_state_topic(sc), "nav", body, t)
         self.counters["published"] += 1
         self.last_t = t

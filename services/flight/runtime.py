@@ -6,6 +6,7 @@ running mission (``ServiceContext.joining``): the service declares itself alive 
 do its job, so that nobody waits on it before.  ``run_service`` opens the zenoh session
 (always closed, whatever happens), builds the Bus, turns SIGTERM/SIGINT into a stop request,
 runs the service's main loop, publishes its final counters and returns an exit status.
+SIGHUP stops it too, and so does the launcher's death (``stop_with_launcher``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import ctypes
 import logging
 import signal
 import sys
@@ -37,8 +39,10 @@ from services.bus import (
     open_session,
     wait_for_alive,
 )
+from services.bus.security import Credentials, load_credentials
 from services.config import Deployment, DeploymentError, load_deployment
 from services.interface import Message, fault_topic, log_topic, stats_topic
+from services.model import duration
 
 # zenoh reads it when a session opens: every service's, not the launcher's (SERVICE_ZENOH_RUNTIME)
 os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)
@@ -109,8 +113,41 @@ class ServiceContext:
             log.exception("could not publish a log message")
 
 
-def bus_settings(dep: Deployment, hub: str) -> BusSettings:
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def stop_with_launcher() -> None:
+    """Linux: have the kernel send this process SIGTERM (a stop request) when the launcher
+    that started it dies, even by SIGKILL (``prctl(PR_SET_PDEATHSIG)``); a launcher already
+    gone stops it at once.  The launcher names itself in ``DDVI_LAUNCHER_PID``; without it
+    (a service started by hand) nothing is done."""
+    parent = os.environ.get("DDVI_LAUNCHER_PID", "")
+    if not parent.isdigit() or not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+            log.warning("prctl(PR_SET_PDEATHSIG) failed (errno %d)", ctypes.get_errno())
+            return
+    except (OSError, AttributeError) as exc:
+        log.warning("no parent-death signal (%s): this service outlives a killed launcher", exc)
+        return
+    if os.getppid() != int(parent):  # the launcher died before the prctl
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def mission_window(dep: Deployment) -> tuple[float, float]:
+    """The simulation times (s) a received message may carry: the mission's, with two
+    flight-software steps of margin each side (``Bus(time_window=...)``)."""
+    margin = 2.0 * max(dep.run.fsw_period, dep.run.nav_period)
+    return -margin, duration(dep) + margin
+
+
+def bus_settings(dep: Deployment, hub: str, credentials: Credentials | None = None) -> BusSettings:
     connect = [hub, *dep.bus.connect]
+    if credentials is not None:  # a secure bus: the hub's client, listening on nothing
+        return BusSettings(mode="client", listen=[], connect=connect, user=credentials.user,
+                           password=credentials.password, tls=credentials.tls)  # fmt: skip
     if dep.bus.mode == "client":
         return BusSettings(mode="client", listen=[], connect=connect)
     return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
@@ -124,6 +161,7 @@ def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
     ap.add_argument("--name", default=default_name, help="service name")
     ap.add_argument("--out", default=".", help="the run's output folder")
     ap.add_argument("--join", action="store_true", help="restarted into a running mission")
+    ap.add_argument("--credentials", help="this service's bus credentials (a secure bus)")
     return ap.parse_args(argv)
 
 
@@ -151,9 +189,15 @@ def run_service(
         print(f"{args.name}: {exc}", file=sys.stderr)
         return 2
     stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
-    with open_session(bus_settings(dep, args.hub)) as session:
+    stop_with_launcher()
+    try:
+        creds = load_credentials(args.credentials) if args.credentials else None
+    except (OSError, ValueError) as exc:
+        print(f"{args.name}: --credentials: {exc}", file=sys.stderr)
+        return 2
+    with open_session(bus_settings(dep, args.hub, creds)) as session:
         bus = Bus(
             session,
             args.run,
@@ -161,6 +205,7 @@ def run_service(
             links=dep.links_for(args.name),
             link_clock="sim" if dep.run.mode == "lockstep" else "wall",
             seed=dep.run.seed,
+            time_window=mission_window(dep),
         )
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)

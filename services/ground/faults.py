@@ -18,25 +18,29 @@ clock, which also proves the run is there).  The kinds:
                                     PUB (service-name globs; nav/deputy1 means nav-deputy1)
                                     from now on, ahead of the deployment's [[link]]s
 
+RUN is the run folder ``ddvi run`` prints, or the run's name under ``--output`` (default
+``runs``): the command reads the run's hub from its ``bus.json`` and, on a secure bus, connects
+with the operator's credentials from its ``security/`` folder (the only ones allowed to put
+faults).  ``--hub`` names the hub of an insecure run that has no run folder here.
+
 The service that acts logs ``fault <kind> <target>: ...``; the command waits for that line,
 prints it, and exits 0, or 1 when the run, the service or that answer is not there, or the
-service refused the fault.
+service refused the fault; 2 for a command line that does not describe a fault or a run.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import queue
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from services.bus import (
-    DEFAULT_HUB,
-    EPHEMERAL_LOOPBACK,
     LINK_PARAMETERS,
     Bus,
     BusSettings,
@@ -45,15 +49,19 @@ from services.bus import (
     queue_handler,
     wait_for_alive,
 )
+from services.bus.security import OPERATOR
 from services.config import check_panel
 from services.interface import decode, topics
+
+if TYPE_CHECKING:
+    from services.ground.credentials import RunBus
 
 KINDS = ("kill", "panel", "bias", "link")
 
 
 def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi fault``, for ``services.cli``."""
-    p.add_argument("run", help="the run's name (ddvi run prints it: 'run <name>, ...')")
+    p.add_argument("run", help="the run folder ddvi run prints, or the run's name under --output")
     p.add_argument("kind", choices=KINDS, help="what to inject")
     p.add_argument("target", nargs="?", help="kill: a service (ctrl-<deputy>, nav-<deputy>); "
                    "panel, bias: a deputy; link: see --to")  # fmt: skip
@@ -70,7 +78,8 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                    help="bias: Hill position bias, m")  # fmt: skip
     p.add_argument("--velocity", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    default=[0.0, 0.0, 0.0], help="bias: Hill velocity bias, m/s")  # fmt: skip
-    p.add_argument("--hub", default=DEFAULT_HUB, help="the run's hub (ddvi run prints it)")
+    p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
+    p.add_argument("--hub", help="an insecure run's hub, when its run folder is not here")
     # a lock-step run sends no clock while a controller learns (seconds, more on a busy host)
     p.add_argument("--timeout", type=float, default=30.0, help="s to wait for the run's answer")
     return p
@@ -99,6 +108,28 @@ class UsageError(Exception):
     """A fault the command line does not describe fully; the message says what is missing."""
 
 
+def locate_run(run: str, output: str, hub: str | None, user: str) -> RunBus:
+    """The run's bus: from its run folder (``find_run``; ``hub`` overrides its endpoint), or,
+    with no run folder here, the insecure hub ``hub``.  Raises UsageError saying what is
+    missing."""
+    # imported here: `ddvi fault` parses its arguments with the fewest modules (a running
+    # mission waits for nobody)
+    from services.ground.credentials import RunBus, RunNotFoundError, find_run
+
+    try:
+        found = find_run(run, output, user)
+    except RunNotFoundError as exc:
+        if hub is None:
+            raise UsageError(f"ddvi fault: {exc}; or give an insecure run's --hub") from exc
+        try:
+            check_name("run", run)
+            BusSettings(mode="client", listen=[], connect=[hub])
+        except ValueError as err:
+            raise UsageError(f"ddvi fault: {err}") from err
+        return RunBus(run, hub, None)
+    return RunBus(found.run, hub, found.credentials) if hub else found
+
+
 def _target(args: argparse.Namespace) -> tuple[str, str]:
     """The run and the fault's target, checked (a link's target: its subscriber glob)."""
     if args.kind == "link":
@@ -108,7 +139,7 @@ def _target(args: argparse.Namespace) -> tuple[str, str]:
     elif not args.target:
         raise UsageError(f"ddvi fault {args.kind}: name the target")
     try:
-        run = check_name("run", args.run)
+        run = check_name("run", args.run_name)
         target = args.target if args.kind == "link" else check_name("target", args.target)
     except ValueError as exc:
         raise UsageError(f"ddvi fault: {exc}") from exc
@@ -164,20 +195,35 @@ def _publish_and_wait(
     return None
 
 
+def _connect(stack: contextlib.ExitStack, bus: RunBus) -> zenoh.Session | None:
+    """The run's session (closed with ``stack``), or None, said in one line, when the hub
+    refuses these credentials or cannot be reached."""
+    try:
+        return stack.enter_context(open_session(bus.settings()))
+    except Exception as exc:  # zenoh.ZError: refused (credentials) or unreachable
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        print(f"ddvi fault: cannot connect to {bus.hub} ({first}); is run {bus.run!r} "
+              "running?", file=sys.stderr)  # fmt: skip
+        return None
+
+
 def fault_command(args: argparse.Namespace) -> int:
     """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
     try:
+        bus = locate_run(args.run, args.output, args.hub, OPERATOR)
+        args.run_name = bus.run
         run, target = _target(args)
         params, acting = _params(args, target)
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2
-    settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
-    with open_session(settings) as session:
+    with contextlib.ExitStack() as stack:
+        if (session := _connect(stack, bus)) is None:
+            return 1
         t = _clock(session, run, args.timeout)
         if t is None:
             print(
-                f"ddvi fault: no clock from run {run!r} on {args.hub} within {args.timeout:g} s; "
+                f"ddvi fault: no clock from run {run!r} on {bus.hub} within {args.timeout:g} s; "
                 "is it running? (ddvi run prints 'run <name>, output <dir>, hub <endpoint>')",
                 file=sys.stderr,
             )

@@ -23,7 +23,7 @@ FIGURES = {
     "hill_xdot.png": "Hill x velocity vs orbits",
     "hill_ydot.png": "Hill y velocity vs orbits",
     "sigma3.png": "Commanded relative MRP sigma3 vs orbits",
-    "gains.png": "Learned gain K vs orbits, LQR gain dashed",
+    "gains.png": "Learned gain K vs orbits, true optimum K* dotted, nominal LQR gain dashed",
     "along_track_error.png": "|y - y_ref| vs orbits (log scale)",
 }
 """Figure file name -> its title (after the run's name) and its line in report.md."""
@@ -109,14 +109,16 @@ def hill_xy_figure(canvas: Canvas) -> None:
 
 
 def gains_figure(canvas: Canvas) -> None:
-    """One panel per element of K (1, 4): every DDVI deputy's flown gain as steps, held to the
-    end of the run, and its LQR gain dashed."""
+    """One panel per element of K (1, 4): every learning deputy's flown gain as steps, held to
+    the end of the run, its nominal LQR gain dashed and the optimal gain K* of the truth's
+    linear model dotted (the reference its gain error is scored against; the two lines are
+    one when the truth is nominal)."""
     data = canvas.data
     P = data.period
     fig, axes = canvas.plt.subplots(
         2, 2, figsize=(10, 6.5), sharex=True, gridspec_kw={**MARGINS, "top": 0.89, "hspace": 0.25}
     )
-    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller == "ddvi"]
+    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller != "lqr"]
     for c, ax in enumerate(axes.flat):
         for j, s in learners:
             color = canvas.color(j)
@@ -130,6 +132,9 @@ def gains_figure(canvas: Canvas) -> None:
             if s.K_lqr.size > c:
                 ax.axhline(float(s.K_lqr.flat[c]), color=color, ls="--", lw=1.0,
                            label=f"{s.deputy.name} LQR")  # fmt: skip
+            if s.K_true is not None and s.K_true.size > c:
+                ax.axhline(float(s.K_true.flat[c]), color=color, ls=":", lw=1.6,
+                           label=f"{s.deputy.name} true K*")  # fmt: skip
         ax.set_title(f"K[{K_NAMES[c] if c < len(K_NAMES) else c}]")
         ax.grid(True, alpha=0.3)
         if c >= 2:
@@ -137,7 +142,9 @@ def gains_figure(canvas: Canvas) -> None:
     if learners:
         axes.flat[0].legend(loc="best", fontsize="small")
     else:
-        axes.flat[0].text(0.5, 0.5, "no ddvi deputy", ha="center", transform=axes.flat[0].transAxes)
+        axes.flat[0].text(
+            0.5, 0.5, "no learning deputy", ha="center", transform=axes.flat[0].transAxes
+        )
     fig.suptitle(canvas.title("gains.png"))
     canvas.save(fig, "gains.png")
 

@@ -14,10 +14,12 @@ SERVICE``): the named service is killed with SIGKILL, a crash.  Outputs: ``stats
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import os
 import queue
+import shutil
 import signal
 import socket
 import subprocess
@@ -25,10 +27,11 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
-from services.bus import Bus, BusSettings, open_session, queue_handler, wait_for_alive
+from services.bus import Bus, BusSettings, open_session, queue_handler
 from services.config import Deployment
+from services.ground import credentials, lifecycle
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
 from services.interface.topics import fault_topic, log_topic, stats_topic
@@ -71,6 +74,8 @@ class Launcher:
         self.quiet = quiet
         self.restarts: dict[str, int] = {}
         self.kills = 0
+        self.signals = lifecycle.StopSignals()
+        self.monitor_died = False  # then the report is recovered from its recording
 
     def say(self, text: str, error: bool = False) -> None:
         """Progress on stderr (not with --quiet); an error is always said."""
@@ -83,7 +88,11 @@ class Launcher:
         logs.mkdir(parents=True, exist_ok=True)
         log = open(logs / f"{name}.log", "ab" if join else "wb")  # noqa: SIM115 - see stop_all
         host = self.dep.host_of(name)
-        hub = self.hub if host is None else f"tcp/{hub_address(host)}:{self.port}"
+        hub = (
+            self.hub
+            if host is None
+            else credentials.host_endpoint(self.dep, hub_address(host), self.port)
+        )
         # a service on another host runs in its network namespace (ip netns exec execs it,
         # so the pid and the signals are the service's own)
         prefix = [] if host is None else ["ip", "netns", "exec", self.dep.host[host].netns]
@@ -103,9 +112,13 @@ class Launcher:
             "--out",
             str(self.out),
             *(["--join"] if join else []),
+            *credentials.service_arguments(self.dep, self.out, name),
         ]
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-        # the monitor keeps the terminal for its live status; the others log to files
+        # a service stops by itself when the launcher dies (services.flight.runtime)
+        env["DDVI_LAUNCHER_PID"] = str(os.getpid())
+        # the monitor keeps the terminal for its live status (and logs to its file too:
+        # services.ground.monitor); the others log to files
         stderr = None if name == "monitor" and not self.quiet else log
         popen = subprocess.Popen(cmd, stdout=log, stderr=stderr, env=env, start_new_session=True)
         if (old := self.procs.get(name)) is not None:
@@ -131,58 +144,142 @@ class Launcher:
                 p.log.close()
 
     def execute(self) -> int:
-        """Run the mission; the exit status is 0 only when it completed and was reported."""
-        self.out.mkdir(parents=True, exist_ok=True)
+        """Run the mission; the exit status (``services.ground.lifecycle``): 0 completed, 1
+        failed or ended early, 2 bad input, 3 completed with commands refused, stale or
+        missing, 128 + N stopped by signal N (every service stopped, the partial report
+        written)."""
+        warnings, refused = lifecycle.resource_problems(self.dep)
+        if refused is not None:
+            self.say(refused, error=True)
+            return lifecycle.EXIT_USAGE
         self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
+        for warning in warnings:
+            self.say(f"warning: {warning}")
         for warning in holding_warnings(self.dep):
             self.say(f"warning: {warning}")
         if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
             self.say(f"network namespaces {missing} do not exist: run `ddvi netns up "
                      f"{self.dep.path}` first (as root)", error=True)  # fmt: skip
             return 1
-        started = time.monotonic()
+        self.signals.install()
         try:
-            with open_session(self._hub_settings()) as session:
-                first = [s for s in self.dep.services if s != "environment"]
-                # the monitor first, so that it records everything from the first message on
-                self.start("monitor")
-                if not wait_for_alive(session, self.run, ["monitor"], self.dep.run.startup_timeout):
-                    self.say(f"the monitor did not come alive; see {self.out / 'logs'}", error=True)
-                    return 1
-                for name in first[1:]:
-                    self.start(name)
-                alive = wait_for_alive(session, self.run, first, self.dep.run.startup_timeout)
-                if missing := sorted(set(first) - alive):
-                    self.say(
-                        f"not alive after {self.dep.run.startup_timeout} s: {missing}; "
-                        f"see {self.out / 'logs'}",
-                        error=True,
-                    )
-                    return 1
-                self.say(
-                    f"{len(first)} services alive in {time.monotonic() - started:.1f} s; "
-                    "starting the environment"
-                )
-                with Bus(session, self.run, "launcher") as bus:
-                    faults: queue.SimpleQueue = queue.SimpleQueue()
-                    bus.subscribe(
-                        fault_topic("kill"), queue_handler(faults), expected_schema="fault"
-                    )
-                    self.start("environment")
-                    return self._supervise(started, bus, faults)
-        except KeyboardInterrupt:
-            self.say("interrupted; stopping every service")
-            return 130
+            status = self._open_and_fly()
         finally:
-            self.stop_all()
+            try:
+                self.stop_all()
+            finally:
+                self.signals.restore()
+        if self.monitor_died:
+            self._recover()
+        return self._after_stop(status)
+
+    def _open_and_fly(self) -> int:
+        """Make the run folder and open the hub's session (either failing: one line, status
+        2, and no run folder left), then fly the mission."""
+        started = time.monotonic()
+        made = not self.out.exists()
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "logs").mkdir(exist_ok=True)
+        except OSError as exc:
+            self.say(f"cannot create the run folder {self.out} ({exc.strerror}); choose "
+                     "another with --output or run.output", error=True)  # fmt: skip
+            return lifecycle.EXIT_USAGE
+        with contextlib.ExitStack() as stack:
+            try:
+                session = stack.enter_context(open_session(self._hub_settings()))
+            except Exception as exc:  # zenoh.ZError: a port in use, an endpoint unreachable
+                first = (str(exc).splitlines() or [type(exc).__name__])[0]
+                if made:  # nothing ran: leave no empty run folder behind
+                    shutil.rmtree(self.out, ignore_errors=True)
+                self.say(f"cannot open the bus (port {self.port}, connect "
+                         f"{self.dep.bus.connect}): {first}; is bus.port in use, or a "
+                         "bus.connect endpoint wrong?", error=True)  # fmt: skip
+                return lifecycle.EXIT_USAGE
+            return self._fly(session, started)
+        return lifecycle.EXIT_FAILED  # not reached (mypy: ExitStack may swallow)
+
+    def _exited(self) -> tuple[str, int] | None:
+        """A started service that has ended (name, status), or None."""
+        for name, p in self.procs.items():
+            if (rc := p.popen.poll()) is not None:
+                return name, rc
+        return None
+
+    def _await(self, session: Any, names: list[str]) -> int | None:
+        """Wait for the services' liveliness, watching them: None when all are alive, else
+        the exit status (a crash is said at once, with the service's last log lines)."""
+        how, what = lifecycle.await_alive(
+            session, self.run, names, self.dep.run.startup_timeout, self._exited,
+            lambda: self.signals.received is not None,
+        )  # fmt: skip
+        if how == "alive":
+            return None
+        if how == "stopped":
+            return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
+        if how == "exited":
+            name, rc = what
+            log = self.out / "logs" / f"{name}.log"
+            tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
+            self.say(f"{name} exited with status {rc} while starting; last lines of {log}:"
+                     f"{tail or ' (empty)'}", error=True)  # fmt: skip
+            return lifecycle.EXIT_FAILED
+        self.say(f"not alive after {self.dep.run.startup_timeout} s: {what}; "
+                 f"see {self.out / 'logs'}", error=True)  # fmt: skip
+        return lifecycle.EXIT_FAILED
+
+    def _fly(self, session: Any, started: float) -> int:
+        """Start the monitor, the flight services, then the environment, and supervise."""
+        first = [s for s in self.dep.services if s != "environment"]
+        # the monitor first, so that it records everything from the first message on
+        self.start("monitor")
+        if (status := self._await(session, ["monitor"])) is not None:
+            return status
+        for name in first[1:]:
+            self.start(name)
+        if (status := self._await(session, first)) is not None:
+            return status
+        self.say(
+            f"{len(first)} services alive in {time.monotonic() - started:.1f} s; "
+            "starting the environment"
+        )
+        with Bus(session, self.run, "launcher") as bus:
+            faults: queue.SimpleQueue = queue.SimpleQueue()
+            bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
+            self.start("environment")
+            return self._supervise(started, bus, faults)
+
+    def _after_stop(self, status: int) -> int:
+        """Once every service is stopped: a stop signal's status (and whether the partial
+        report is there), or ``status``."""
+        if (signum := self.signals.received) is None:
+            return status
+        report = self.out / "report.md"
+        where = f"partial report in {self.out}" if report.is_file() else (
+            f"no report; see {self.out / 'logs' / 'monitor.log'}")  # fmt: skip
+        code = lifecycle.exit_for_signal(signum)
+        self.say(f"stopped by {signal.Signals(signum).name}: every service stopped; {where} "
+                 f"(exit status {code})", error=True)  # fmt: skip
+        return code
 
     def _hub_settings(self) -> BusSettings:
         """The hub's session: client-mode services need a router to relay between them; it
         listens on loopback and on the launcher's side of every other host's link."""
+        if (made := getattr(self, "_hub", None)) is not None:
+            return made
         hosts = range(len(self.dep.host))
         listen = [self.hub] + [f"tcp/{hub_address(k)}:{self.port}" for k in hosts]
-        mode = "router" if self.dep.bus.mode == "client" else "peer"
-        return BusSettings(mode=mode, listen=listen, connect=list(self.dep.bus.connect))
+        # bus.json and, on a secure bus, every participant's credentials in the run folder
+        self._hub: BusSettings = credentials.hub_settings(
+            self.dep, self.run, self.out, listen, self.dep.services
+        )
+        if not self.dep.bus.security:
+            self.say(  # said even with --quiet: an open bus is never silent
+                "warning: bus.security = false: the bus is open, unauthenticated and "
+                "without access control; any local process can command the deputies",
+                error=True,
+            )
+        return self._hub
 
     def _event(self, bus: Bus, level: str, text: str, t: float) -> None:
         """Say it, log it on the bus, and publish the launcher's counters."""
@@ -219,6 +316,8 @@ class Launcher:
         env, monitor = self.procs["environment"].popen, self.procs["monitor"].popen
         sim_t = 0.0
         while env.poll() is None:
+            if self.signals.received is not None:
+                return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
             while not faults.empty():
                 _, msg = faults.get_nowait()
                 sim_t = max(sim_t, msg.t)
@@ -236,29 +335,45 @@ class Launcher:
                     self._event(bus, "warning", f"{name} exited with status {rc}; restarted "
                                 f"({done + 1} of {policy.max_restarts})", sim_t)  # fmt: skip
                     continue
-                self.say(
-                    f"{name} exited with status {rc} before the mission ended; "
-                    f"see {self.out / 'logs' / (name + '.log')}",
-                    error=True,
-                )
+                log = self.out / "logs" / f"{name}.log"
+                tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
+                self.say(f"{name} exited with status {rc} before the mission ended; last "
+                         f"lines of {log}:{tail or ' (empty)'}", error=True)  # fmt: skip
+                self.monitor_died = name == "monitor"
                 return 1
             time.sleep(0.2)
         if env.returncode != 0:
             self.say(f"environment exited with status {env.returncode}; see its log", error=True)
             return 1
-        try:
-            monitor.wait(timeout=60)
-        except subprocess.TimeoutExpired:
+        return self._await_report(monitor, started)
+
+    def _await_report(self, monitor: subprocess.Popen, started: float) -> int:
+        """Wait for the monitor's report (60 s at most); the run's verdict from it."""
+        deadline = time.monotonic() + 60.0
+        while monitor.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)  # a stop signal now changes nothing: the report is being written
+        if monitor.poll() is None:
             self.say("monitor did not finish its report within 60 s", error=True)
             return 1
         summary = self.out / "summary.json"
         if monitor.returncode != 0 or not summary.is_file():
             self.say(f"monitor exited with status {monitor.returncode}; no report", error=True)
             return 1
-        completed = json.loads(summary.read_text()).get("completed", False)
-        self.say(
-            f"mission {'completed' if completed else 'INCOMPLETE'} in "
-            f"{time.monotonic() - started:.1f} s; report in {self.out}"
-        )
+        status, text = lifecycle.verdict(json.loads(summary.read_text()))
+        self.say(f"{text} in {time.monotonic() - started:.1f} s; report in {self.out}",
+                 error=status != 0)  # fmt: skip
         print(self.out)
-        return 0 if completed else 1
+        return status
+
+    def _recover(self) -> None:
+        """The monitor died: write the report from its recording, up to the last complete
+        chunk (``ddvi report``), so that a run never ends without one."""
+        try:
+            from services.ground.recover import recover
+
+            n = recover(self.out).messages
+            self.say(f"report recovered from the recording ({n} messages); see {self.out}",
+                     error=True)  # fmt: skip
+        except Exception as exc:  # a recovery that fails is said; the run has failed anyway
+            self.say(f"could not recover the report ({exc}); try `ddvi report {self.out}`",
+                     error=True)  # fmt: skip

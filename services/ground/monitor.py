@@ -75,6 +75,7 @@ POLL = 0.05  # s the main loop waits for a sample before it looks at the clocks 
 BATCH_PERIOD = 0.005  # s the main loop lets samples gather once one has come
 BATCH_MAX = 512  # samples a batch at most: flushing, the status and a stop are looked at between
 
+TIME_MASTER = "environment"  # the one service whose clock messages the monitor obeys
 _DATA, _ALIVE = 0, 1
 Item = tuple[int, str, Any, int]
 """A queued sample: (_DATA or _ALIVE, key, payload bytes or alive flag, receive time ns)."""
@@ -96,6 +97,9 @@ class Monitor:
         # recorded, but kept out of the report: a replayed stats or gains message must not
         # overwrite newer figures
         self.counters.update({f"ignored.{r}": 0 for r in SEQUENCE_REASONS})
+        # a clock from anyone but the environment (the time master) is recorded, never obeyed:
+        # it must not end the mission nor move its time
+        self.counters["refused.clock"] = 0
         self.guards = SequenceGuards()
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
@@ -160,6 +164,13 @@ class Monitor:
             self.reject(topic, key, value, err, recv_ns)
             return
         rec.message(topic, msg, recv_ns)  # everything received is recorded
+        if msg.schema == "clock" and msg.src != TIME_MASTER:
+            n = self.counters["refused.clock"] = self.counters["refused.clock"] + 1
+            if n <= 10 or n % 1000 == 0:
+                log.warning("refused a clock from %r (only %s keeps time; #%d)", msg.src,
+                            TIME_MASTER, n)  # fmt: skip
+            self.counters["recorded"] = rec.messages
+            return
         if (why := self.guards.check(msg, topic)) is not None:
             n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
             if n <= 10 or n % 1000 == 0:
@@ -337,8 +348,33 @@ def _report(ctx: ServiceContext, mon: Monitor, completed: bool) -> int:
     return 0 if len(summary["figures"]) > 0 else 1
 
 
+def log_to_file_too() -> None:
+    """Also log to stdout when it is not where stderr goes: the launcher gives the monitor the
+    terminal's stderr (for the live status) and its log file as stdout, which then holds
+    every line logged (and a crash's traceback) as every other service's log does."""
+    try:
+        out, err = os.fstat(sys.stdout.fileno()), os.fstat(sys.stderr.fileno())
+    except (OSError, ValueError, AttributeError):
+        return
+    if (out.st_dev, out.st_ino) == (err.st_dev, err.st_ino):
+        return
+    handler = logging.StreamHandler(sys.stdout)
+    root = logging.getLogger()
+    if root.handlers and root.handlers[0].formatter is not None:
+        handler.setFormatter(root.handlers[0].formatter)
+    root.addHandler(handler)
+
+
 def main(ctx: ServiceContext) -> int:
     """Record the run until it ends or is stopped, then write its report."""
+    try:
+        return _main(ctx)
+    except Exception:
+        log.exception("the monitor failed")  # into its log file, not the terminal alone
+        raise
+
+
+def _main(ctx: ServiceContext) -> int:
     inbox: Inbox = queue.SimpleQueue()
     # Subscribe before anything else: the launcher starts the other services once it sees
     # this process alive.
@@ -365,4 +401,10 @@ def main(ctx: ServiceContext) -> int:
 
 
 if __name__ == "__main__":
+    logging.basicConfig(
+        level=logging.INFO,
+        stream=sys.stderr,
+        format="%(asctime)s monitor %(levelname)s %(message)s",
+    )
+    log_to_file_too()
     sys.exit(run_service(main, "monitor"))

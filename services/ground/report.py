@@ -6,8 +6,15 @@
                      truth (vs the chief), its navigation state at that time (blank if none),
                      the commanded sigma3 in force (zero-order hold on ``for_t``), controller phase
     *.png            the paper's figures (``services.ground.figures``)
-    summary.json     run, completion, errors at the end, learned vs LQR gains, message counters
+    summary.json     run, completion, errors at the end, gains against the reference,
+                     message counters
     report.md        the summary table and the figure list
+
+Every gain error is |K - K*| / |K*| against K*, the optimal gain of the truth's linear model
+of that run (``services.model.true_lqr_gains``: the truth's density, facet area and factors),
+which is the nominal LQR gain when the truth is nominal; the error against the nominal LQR
+gain is kept beside it (``gain_error_vs_lqr``), since a learner that learns the truth is off
+the nominal gain by as much as the model is wrong.
 """
 
 from __future__ import annotations
@@ -22,8 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.ground.figures import FIGURES, write_figures
+from services.ground.outcome import outcome, outcome_lines
 from services.ground.rundata import CraftData, DeputySeries, FloatArray, GainRecord, RunData
-from services.model import lqr_gains
+from services.model import lqr_gains, true_lqr_gains
 
 log = logging.getLogger("ddvi.report")
 
@@ -51,11 +59,42 @@ def _switches(gains: list[GainRecord], source: str, period: float) -> list[float
     ]
 
 
-def _norm_rel(K: FloatArray, K_ref: FloatArray) -> float | None:
+NOT_LEARNED = ("lqr", "initial", "fallback")
+"""Gain sources that are not learned: the nominal LQR gain, K0 while exploring, the old gains
+a failed re-learning fell back to.  Any other source is a learner's."""
+
+REFERENCE = "the optimal gain K* of the truth's linear model (its density, facet area and factors)"
+
+
+def relative_gain_error(K: FloatArray, K_ref: FloatArray | None) -> float | None:
+    """|K - K_ref| / |K_ref| (Frobenius norms); None without a reference or with a shape or
+    zero reference that makes no sense of it."""
+    if K_ref is None:
+        return None
     den = float(np.linalg.norm(K_ref))
     if den == 0.0 or K.shape != K_ref.shape:
         return None
     return float(np.linalg.norm(K - K_ref) / den)
+
+
+def _learned_switches(gains: list[GainRecord], period: float) -> list[float]:
+    """When (orbits) the gains switched to learned ones from others, in order."""
+    return [
+        r.t / period
+        for k, r in enumerate(gains)
+        if r.source not in NOT_LEARNED and (k == 0 or gains[k - 1].source != r.source)
+    ]
+
+
+def reference_gains(dep: Any, deputy: Any) -> tuple[FloatArray | None, FloatArray | None]:
+    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run, or (None,
+    None) when it has none (no drag in the truth, or no stabilising solution)."""
+    try:
+        K, L = true_lqr_gains(dep, deputy)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
+        return None, None
+    return np.asarray(K), np.asarray(L)
 
 
 def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
@@ -63,18 +102,24 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
     craft = data.craft.get(d.name, CraftData())
     out: dict[str, Any] = {
         "controller": d.controller,
+        # a learner's learning.method (None for LQR)
+        "learning_method": None if d.controller == "lqr" else getattr(d.learning, "method", None),
         "y_ref": d.y_ref,
         "samples": len(s.t),
         "final_along_track_error_m": None,
         "max_along_track_error_last_orbit_m": None,
         "max_radial_last_orbit_m": None,
         "final_radial_m": None,
+        "gain_error_vs_true_optimum": None,
         "gain_error_vs_lqr": None,
         "learned_at_orbits": None,
         "relearned_at_orbits": [],
         "relearning_abandoned_at_orbits": [],
         "gains": None,
         "lqr_gains": {"K": s.K_lqr.tolist(), "L": s.L_lqr.tolist()},
+        "true_optimal_gains": None
+        if s.K_true is None or s.L_true is None
+        else {"K": s.K_true.tolist(), "L": s.L_true.tolist()},
         "phase": craft.status[-1].body["phase"] if craft.status else None,
     }
     if len(s.t):
@@ -90,11 +135,14 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
     if craft.gains:
         g = craft.gains[-1]
         out["gains"] = {"K": g.K, "L": g.L, "source": g.source}
-        if d.controller == "ddvi":
-            out["gain_error_vs_lqr"] = _norm_rel(np.asarray(g.K), s.K_lqr)
+        # the gain flown at the end against the truth's optimum, for every controller (the
+        # LQR deputy's is how wrong the nominal model is)
+        out["gain_error_vs_true_optimum"] = relative_gain_error(np.asarray(g.K), s.K_true)
+        if d.controller != "lqr":
+            out["gain_error_vs_lqr"] = relative_gain_error(np.asarray(g.K), s.K_lqr)
             # every switch to learned gains: the first learning, then each re-learning (or,
             # for a restarted controller, its learning from scratch)
-            switches = _switches(craft.gains, "ddvi", data.period)
+            switches = _learned_switches(craft.gains, data.period)
             if switches:
                 out["learned_at_orbits"] = switches[0]
                 out["relearned_at_orbits"] = switches[1:]
@@ -213,10 +261,12 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
         f"- completed: {'yes' if summary['completed'] else '**no** (partial report)'}",
         f"- simulated: {summary['sim_time_s']:.0f} s = {summary['orbits']:.2f} orbits "
         f"in {summary['wall_s']:.1f} s wall",
+        *(outcome_lines(summary["outcome"]) if "outcome" in summary else []),
         "",
         "| deputy | controller | final abs(y - y_ref) [m] | max last orbit [m] | final abs(x) [m] "
-        "| max abs(x) last orbit [m] | gain error vs LQR | learned at [orbits] | phase |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| max abs(x) last orbit [m] | gain error | gain error vs nominal LQR "
+        "| learned at [orbits] | phase |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, d in summary["deputies"].items():
         learned = [d["learned_at_orbits"], *d.get("relearned_at_orbits", [])]
@@ -225,10 +275,17 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
         lines.append(
             f"| {name} | {d['controller']} | {_num(d['final_along_track_error_m'])} "
             f"| {_num(d['max_along_track_error_last_orbit_m'])} | {_num(d['final_radial_m'])} "
-            f"| {_num(d['max_radial_last_orbit_m'])} | {_num(d['gain_error_vs_lqr'])} "
+            f"| {_num(d['max_radial_last_orbit_m'])} "
+            f"| {_num(d.get('gain_error_vs_true_optimum'))} | {_num(d['gain_error_vs_lqr'])} "
             f"| {', '.join([*(_num(t, '.2f') for t in learned), *gave_up])} "
             f"| {d['phase'] or '-'} |"
         )
+    lines += [
+        "",
+        f"Gain error: |K - K*| / |K*| of the gain flown at the end against {REFERENCE}; "
+        "vs nominal LQR: against the LQR gain of the nominal model (the two agree when the "
+        "truth is nominal).",
+    ]
     m = summary["messages"]
     tot = m["totals"]
     reasons = ", ".join(f"{k}: {v}" for k, v in m["rejected_by_reason"].items())
@@ -264,7 +321,8 @@ def write_report(
     for d in data.dep.deputy:
         t, hill = data.hill(d.name)
         K, L = lqr_gains(data.dep, d)
-        series.append(DeputySeries(d, t, hill, np.asarray(K), np.asarray(L)))
+        K_true, L_true = reference_gains(data.dep, d)
+        series.append(DeputySeries(d, t, hill, np.asarray(K), np.asarray(L), K_true, L_true))
     rows = write_csv(out / "timeseries.csv", data, series)
     try:
         figures = write_figures(out, data, series)
@@ -287,12 +345,25 @@ def write_report(
         "csv_rows": rows,
         "deputies": {s.deputy.name: _deputy_summary(data, s) for s in series},
         "messages": _message_summary(data, monitor_counters),
+        "outcome": _outcome(data, monitor_counters),
         "figures": figures,
         "events": data.events,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
     write_markdown(out / "report.md", summary, figures)
     return summary
+
+
+def _outcome(data: RunData, monitor_counters: dict[str, int]) -> dict[str, Any]:
+    """How the run ended and what happened to its commands (``services.ground.outcome``)."""
+    return outcome(
+        final_seen=data.final_seen,
+        sim_t=data.sim_t,
+        duration=data.duration,
+        period=data.period,
+        services=data.stats,
+        monitor=monitor_counters,
+    )
 
 
 def _json_default(value: Any) -> Any:

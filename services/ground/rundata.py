@@ -253,13 +253,17 @@ def hill_states(
 @dataclass
 class DeputySeries:
     """One deputy's truth Hill states at the sample times, t (N,) and hill (N, 6), with its
-    LQR reference gains K (1, 4) and L (1, 5) of the nominal model."""
+    LQR gains K (1, 4) and L (1, 5) of the nominal model, and the optimal gains K* (1, 4) and
+    L* (1, 5) of the truth's linear model (``services.model.true_lqr_gains``; None when the
+    truth has none), the reference every gain error is scored against."""
 
     deputy: Deputy
     t: FloatArray
     hill: FloatArray
     K_lqr: FloatArray
     L_lqr: FloatArray
+    K_true: FloatArray | None = None
+    L_true: FloatArray | None = None
 
     @property
     def label(self) -> str:

@@ -1,24 +1,38 @@
-"""``ddvi sweep``: the mission over a range of link impairments, LQR against DDVI.
+"""``ddvi sweep``: the mission over a range of link impairments, or of navigation noise and
+model mismatch, every deputy of the deployment side by side.
 
     ddvi sweep delay [DEPLOYMENT] --values 0 60 120 180 300
     ddvi sweep loss  [DEPLOYMENT] --values 0 0.1 0.2 0.3 0.5
+    ddvi sweep noise [DEPLOYMENT] --values 0 0.1 1 10 [--mismatch 1 2] [--orbits 40 30]
+                     [--in-process] [--filter kalman]
 
-For each value the deployment runs through the launcher (every service its own process, as
-``ddvi run``) with two links impaired, ahead of the deployment's own [[link]] rules: navigation
-to controller (``nav-*`` to ``ctrl-*``) and controller to environment (``cmd/*/att``), each
-with that delay (s; simulation time in lock-step mode) or that loss probability.
+delay, loss: two links impaired, ahead of the deployment's own [[link]] rules: navigation to
+controller (``nav-*`` to ``ctrl-*``) and controller to environment (``cmd/*/att``), each with
+that delay (s; simulation time in lock-step mode) or that loss probability.
 
-Writes ``<output>/sweep-<kind>-<stamp>/``: ``sweep.csv`` (one row per run and deputy),
-``sweep.md`` (the same table), ``sweep.png`` (final along-track error and learned-gain error
-against the value) and every run's own folder; prints the table, and the largest value up to
-which every DDVI deputy learned a gain within 10% of the LQR gain (``SUCCESS``).
+noise: one run per (noise v, mismatch factor f): every deputy's navigation.position_noise = v
+(m, 1 sigma per axis) and velocity_noise = ``VELOCITY_NOISE_RATIO`` v (m/s); the truth's
+density_factor and every deputy's area_factor f times the deployment's (as
+deployments/mismatch-2x.toml does at f = 2); ``--filter`` sets every deputy's
+navigation.filter.  ``--orbits`` gives one mission length, or one per mismatch factor (a
+denser atmosphere brings the chief down sooner).
+
+Each run goes through the launcher (every service its own process, as ``ddvi run``); with
+``--in-process`` (noise only: it has no links to impair) through
+``services.flight.inprocess.run_in_process`` instead, the same services' code in one process
+(a 40-orbit mission in seconds; along-track error then in the deputy's navigation frame, the
+report's in the Hill frame).
+
+Writes ``<output>/sweep-<kind>-<name>-<stamp>/``: ``sweep.csv`` (one row per run and deputy),
+``sweep.md`` (the same table), ``sweep.png`` (``services.ground.sweep_table``), the derived
+deployments and every launched run's own folder; prints the table.  Every gain error is
+against the optimal gain K* of the truth's linear model of that run.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import csv
 import datetime
 import json
 import sys
@@ -26,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from services.config import (
+    Deployment,
     DeploymentError,
     deployment_from_table,
     load_deployment,
@@ -33,161 +48,234 @@ from services.config import (
     resolve,
     write_deployment,
 )
+from services.ground.report import NOT_LEARNED, reference_gains, relative_gain_error
+from services.ground.sweep_table import (
+    POINT,
+    SUCCESS,
+    UNITS,
+    largest_learning_value,
+    markdown_table,
+    plot,
+    write_table,
+)
 from services.interface import topics
 
-KINDS = {"delay": "s", "loss": "probability"}
-COLUMNS = [
-    "value",
-    "deputy",
-    "controller",
-    "completed",
-    "final_along_track_error_m",
-    "max_along_track_error_last_orbit_m",
-    "learned",
-    "learned_at_orbits",
-    "gain_error_vs_lqr",
-    "dropped",
-    "delayed",
-    "late",
-    "missing",
+__all__ = [
+    "VELOCITY_NOISE_RATIO",
+    "impaired_table",
+    "inprocess_rows",
+    "largest_learning_value",
+    "noisy_table",
+    "summary_rows",
+    "sweep",
 ]
+
+VELOCITY_NOISE_RATIO = 1e-3
+"""(m/s) of navigation velocity noise per m of position noise in a noise sweep."""
+
+NOTE_LENGTH = 160  # characters of a learner's last log line kept in the table
 
 
 def impaired_table(table: dict[str, Any], kind: str, value: float) -> dict[str, Any]:
     """The deployment table with the navigation-to-controller and controller-to-environment
     links impaired by ``value`` (a delay in s or a loss probability)."""
-    if kind not in KINDS:
-        raise ValueError(f"sweep kind: expected one of {list(KINDS)}, got {kind!r}")
-    key = "delay" if kind == "delay" else "loss"
+    if kind not in ("delay", "loss"):
+        raise ValueError(f"sweep kind: expected 'delay' or 'loss', got {kind!r}")
     every_nav, every_cmd = topics.nav_state_topic("*"), topics.command_topic("*")
     rules = [
-        {"publisher": "nav-*", "subscriber": "ctrl-*", "topic": every_nav, key: value},
-        {"publisher": "ctrl-*", "subscriber": "environment", "topic": every_cmd, key: value},
+        {"publisher": "nav-*", "subscriber": "ctrl-*", "topic": every_nav, kind: value},
+        {"publisher": "ctrl-*", "subscriber": "environment", "topic": every_cmd, kind: value},
     ]
     out = copy.deepcopy(table)
     out["link"] = rules + out.get("link", [])
     return out
 
 
-def summary_rows(value: float, summary: dict[str, Any]) -> list[dict[str, Any]]:
-    """One row per deputy of a run's summary.json."""
+def noisy_table(
+    table: dict[str, Any], noise: float, mismatch: float = 1.0, nav_filter: str | None = None
+) -> dict[str, Any]:
+    """The deployment table with every deputy's navigation noise ``noise`` (m; velocity noise
+    ``VELOCITY_NOISE_RATIO`` times it, m/s), the truth's density_factor and every deputy's
+    area_factor ``mismatch`` times the table's, and, given ``nav_filter``, every deputy's
+    navigation.filter set to it."""
+    out = copy.deepcopy(table)
+    env = out.setdefault("environment", {})
+    env["density_factor"] = env.get("density_factor", 1.0) * mismatch
+    for d in out.get("deputy", []):
+        d["area_factor"] = d.get("area_factor", 1.0) * mismatch
+        nav = d.setdefault("navigation", {})
+        nav["position_noise"] = noise
+        nav["velocity_noise"] = noise * VELOCITY_NOISE_RATIO
+        if nav_filter is not None:
+            nav["filter"] = nav_filter
+    return out
+
+
+def controller_label(controller: str, method: str | None) -> str:
+    """The table's controller cell: ``lqr``, or a learner with its learning.method."""
+    return controller if controller == "lqr" or not method else f"{controller} {method}"
+
+
+def _note(text: str) -> str:
+    """A log line as a table note: at most ``NOTE_LENGTH`` characters, cut at a word."""
+    if len(text) <= NOTE_LENGTH:
+        return text
+    return text[:NOTE_LENGTH].rsplit(" ", 1)[0] + " ..."
+
+
+def _row(point: dict[str, Any], deputy: str, controller: str, **results: Any) -> dict[str, Any]:
+    """A row of the table: the point, the deputy, and its results (None where not given)."""
+    row = dict.fromkeys(["final_along_track_error_m", "max_along_track_error_last_orbit_m",
+                         "learned", "learned_at_orbits", "gain_error", "gain_error_vs_lqr",
+                         "note"])  # fmt: skip
+    return {**point, "deputy": deputy, "controller": controller, **row, **results}
+
+
+def _last_warning(summary: dict[str, Any], name: str) -> str | None:
+    """The last warning or error deputy ``name``'s controller logged in a run's summary."""
+    texts = [e.get("text") for e in summary.get("events", []) if e.get("src") == f"ctrl-{name}"]
+    texts = [t for t in texts if t]
+    return _note(texts[-1]) if texts else None
+
+
+def summary_rows(point: dict[str, Any], summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per deputy of a launched run's summary.json."""
     services = summary["messages"]["services"]
     env = services.get("environment", {})
     rows = []
     for name, d in summary["deputies"].items():
         ctrl = services.get(f"ctrl-{name}", {})
         gains = d.get("gains") or {}
-        learned = d["phase"] == "learned" and gains.get("source") != "fallback"
+        lqr = d["controller"] == "lqr"
+        # flying gains it learned (not K0, and not old gains a failed re-learning fell back to)
+        learned = d["phase"] == "learned" and gains.get("source") not in NOT_LEARNED
         rows.append(
-            {
-                "value": value,
-                "deputy": name,
-                "controller": d["controller"],
-                "completed": summary["completed"],
-                "final_along_track_error_m": d["final_along_track_error_m"],
-                "max_along_track_error_last_orbit_m": d["max_along_track_error_last_orbit_m"],
-                # flying gains it learned (not K0, and not old gains a failed re-learning
-                # fell back to)
-                "learned": learned,
-                "learned_at_orbits": d["learned_at_orbits"],
-                "gain_error_vs_lqr": d["gain_error_vs_lqr"] if learned else None,
-                "dropped": ctrl.get("dropped", 0) + env.get("dropped", 0),
-                "delayed": ctrl.get("delayed", 0) + env.get("delayed", 0),
-                "late": env.get("late_commands", 0),
-                "missing": env.get("missing_commands", 0),
-            }
+            _row(
+                point,
+                name,
+                controller_label(d["controller"], d.get("learning_method")),
+                completed=summary["completed"],
+                final_along_track_error_m=d["final_along_track_error_m"],
+                max_along_track_error_last_orbit_m=d["max_along_track_error_last_orbit_m"],
+                learned=None if lqr else learned,
+                learned_at_orbits=d["learned_at_orbits"],
+                gain_error=d.get("gain_error_vs_true_optimum") if lqr or learned else None,
+                gain_error_vs_lqr=d["gain_error_vs_lqr"] if learned else None,
+                note=None if lqr or learned else _last_warning(summary, name),
+                dropped=ctrl.get("dropped", 0) + env.get("dropped", 0),
+                delayed=ctrl.get("delayed", 0) + env.get("delayed", 0),
+                late=env.get("late_commands", 0),
+                missing=env.get("missing_commands", 0),
+            )
         )
     return rows
 
 
-SUCCESS = 0.1
-"""Learning succeeded: the controller switched to learned gains within 10% of the LQR gain of
-the nominal model (|K - K*|/|K*| < SUCCESS); a learner can also converge to a wrong gain."""
+def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any]]:
+    """Run ``dep`` with ``run_in_process`` (navigation noise seeded with run.seed); one row
+    per deputy.  A run the truth ends early (a re-entry) gives rows with completed = False
+    and the reason as the note."""
+    import numpy as np
 
+    from services.flight.inprocess import run_in_process
+    from services.model import ReentryError, lqr_gains, orbit_period
 
-def succeeded(row: dict[str, Any]) -> bool:
-    """A row whose run completed with learned gains within ``SUCCESS`` of the LQR gain."""
-    err = row["gain_error_vs_lqr"]
-    return bool(row["learned"] and row["completed"] and err is not None and err < SUCCESS)
-
-
-def largest_learning_value(rows: list[dict[str, Any]]) -> float | None:
-    """The largest value at which learning succeeded for every DDVI deputy, all smaller values
-    included (None if it failed at the first)."""
-    best = None
-    for value in sorted({r["value"] for r in rows}):
-        ddvi = [r for r in rows if r["value"] == value and r["controller"] == "ddvi"]
-        if not ddvi or not all(succeeded(r) for r in ddvi):
-            break
-        best = value
-    return best
-
-
-def _fmt(x: Any) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, float):
-        return f"{x:.4g}"
-    return str(x)
-
-
-def markdown_table(kind: str, rows: list[dict[str, Any]]) -> str:
-    """The rows as a markdown table, with a note on what the columns count."""
-    unit = KINDS[kind]
-    head = [f"{kind} ({unit})", "deputy", "controller", "completed", "final along-track error (m)",
-            "last-orbit max (m)", "learned", "at orbit", "gain error", "dropped", "delayed",
-            "late", "missing"]  # fmt: skip
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
-    lines += [
-        "",
-        "learned: the controller switched to learned gains; gain error: |K - K*| / |K*| "
-        "against the nominal model's LQR gain K*; along-track error: |y - y_ref|. dropped, "
-        "delayed: by this deputy's controller's links and the "
-        "environment's command links (all deputies); late, missing: the environment's "
-        "commands, all deputies (a learning attempt longer than run.command_deadline also "
-        "makes them).",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def plot(kind: str, rows: list[dict[str, Any]], path: Path) -> None:
-    """Write sweep.png: final along-track error (left) and learned-gain error (right, a cross
-    at 1 where a DDVI deputy did not learn) against the swept value."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
-    for name in dict.fromkeys(r["deputy"] for r in rows):
-        mine = [r for r in rows if r["deputy"] == name]
-        ax1.semilogy([r["value"] for r in mine], [r["final_along_track_error_m"] for r in mine],
-                     "o-", label=f"{name} ({mine[0]['controller']})")  # fmt: skip
-        learned = [r for r in mine if r["learned"]]
-        if mine[0]["controller"] == "ddvi":
-            ax2.semilogy(
-                [r["value"] for r in learned],
-                [r["gain_error_vs_lqr"] for r in learned],
-                "o-",
-                label=name,
+    try:
+        out = run_in_process(dep, noise_seed=dep.run.seed)
+    except ReentryError as exc:
+        why = _note(str(exc))
+        return [_row(point, d.name, d.controller, completed=False, note=why) for d in dep.deputy]
+    period = orbit_period(dep)
+    rows = []
+    for d in dep.deputy:
+        rec, lqr = out[d.name], d.controller == "lqr"
+        c = rec["controller"]
+        t, x = np.asarray(rec["t"]), np.asarray(rec["x"])
+        ey = np.abs(x[:, 1] - d.y_ref)
+        learned = c.phase == "learned" and c.source not in NOT_LEARNED
+        K = np.asarray(c.K)
+        learned_at = getattr(c, "learned_at", [])
+        scored = lqr or learned  # LQR's gain, or a learned one; not K0 while exploring
+        K_true, K_lqr = reference_gains(dep, d)[0], np.asarray(lqr_gains(dep, d)[0])
+        note = _note(rec["log"][-1]) if rec["log"] else "no learning attempt"
+        method = getattr(d.learning, "method", None)
+        rows.append(
+            _row(
+                point,
+                d.name,
+                controller_label(d.controller, method),
+                completed=True,
+                final_along_track_error_m=float(ey[-1]),
+                max_along_track_error_last_orbit_m=float(ey[t >= t[-1] - period].max()),
+                learned=None if lqr else learned,
+                learned_at_orbits=learned_at[0] / period if learned_at else None,
+                gain_error=relative_gain_error(K, K_true) if scored else None,
+                gain_error_vs_lqr=relative_gain_error(K, K_lqr) if learned else None,
+                note=None if scored else note,
             )
-            failed = [r["value"] for r in mine if not r["learned"]]
-            if failed:
-                ax2.plot(failed, [1.0] * len(failed), "rx", label=f"{name}: not learned")
-    unit = KINDS[kind]
-    ax1.set(xlabel=f"link {kind} ({unit})", ylabel="final |y - y_ref| (m)",
-            title="along-track error at the end")  # fmt: skip
-    ax2.set(xlabel=f"link {kind} ({unit})", ylabel="|K - K*| / |K*|",
-            title="learned gain against the LQR gain")  # fmt: skip
-    for ax in (ax1, ax2):
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+        )
+    return rows
+
+
+def _orbits_per_mismatch(orbits: list[float] | None, mismatches: list[float]) -> list:
+    """--orbits as one value per mismatch factor (None: the deployment's)."""
+    if not orbits:
+        return [None] * len(mismatches)
+    if len(orbits) == 1:
+        return orbits * len(mismatches)
+    if len(orbits) != len(mismatches):
+        raise ValueError(
+            f"--orbits: give one value, or one per --mismatch factor ({len(mismatches)}), "
+            f"not {len(orbits)}"
+        )
+    return list(orbits)
+
+
+def sweep_points(
+    kind: str,
+    table: dict[str, Any],
+    values: list[float],
+    mismatches: list[float] | None = None,
+    orbits: list[float] | None = None,
+    nav_filter: str | None = None,
+) -> list[tuple[dict[str, Any], dict[str, Any], str]]:
+    """(point, deployment table, file stem) of every run, each table checked (raises
+    DeploymentError or ValueError before anything runs)."""
+    if kind not in UNITS:
+        raise ValueError(f"sweep kind: expected one of {list(UNITS)}, got {kind!r}")
+    if kind != "noise" and (mismatches or nav_filter or (orbits and len(orbits) > 1)):
+        raise ValueError("--mismatch, --filter and several --orbits belong to 'ddvi sweep noise'")
+    name = table.get("run", {}).get("name", "run")
+    mismatches = mismatches or [1.0]
+    runs = []
+    for f, n in zip(mismatches, _orbits_per_mismatch(orbits, mismatches), strict=True):
+        for v in values:
+            if kind == "noise":
+                point, t = {"noise": v, "mismatch": f}, noisy_table(table, v, f, nav_filter)
+                stem = f"noise-{v:g}-x{f:g}"
+            else:
+                point, t, stem = {"value": v}, impaired_table(table, kind, v), f"{kind}-{v:g}"
+            run = t.setdefault("run", {})
+            run["name"] = f"{name}-{stem}".replace(".", "p")
+            if n is not None:
+                run["orbits"] = n
+            deployment_from_table(t)
+            runs.append((point, t, stem))
+    return runs
+
+
+def _launch(path: Path, folder: Path, quiet: bool) -> dict[str, Any] | None:
+    """Run one derived deployment through the launcher; its summary.json (None: no report)."""
+    from services.ground.launcher import Launcher
+
+    launcher = Launcher(load_deployment(str(path)), out_root=str(folder), quiet=quiet)
+    status = launcher.execute()
+    summary_path = launcher.out / "summary.json"
+    if not summary_path.is_file():
+        print(f"ddvi sweep: {path.stem}: no report (status {status}); see "
+              f"{launcher.out / 'logs'}", file=sys.stderr)  # fmt: skip
+        return None
+    return json.loads(summary_path.read_text())
 
 
 def sweep(
@@ -195,62 +283,73 @@ def sweep(
     deployment: str | None,
     values: list[float],
     output: str | None = None,
-    orbits: float | None = None,
+    orbits: float | list[float] | None = None,
     quiet: bool = True,
+    mismatches: list[float] | None = None,
+    in_process: bool = False,
+    nav_filter: str | None = None,
 ) -> tuple[Path, list[dict[str, Any]]]:
     """Run the sweep; return its folder and rows.  Raises DeploymentError or ValueError on a
     bad deployment or value (before anything runs)."""
-    from services.ground.launcher import Launcher
-
-    table = read_table(deployment)
-    if orbits is not None:
-        table.setdefault("run", {})["orbits"] = orbits
+    if in_process and kind != "noise":
+        raise ValueError("--in-process models no link impairments: sweep delay and loss without it")
+    orbits = [orbits] if isinstance(orbits, int | float) else orbits
+    runs = sweep_points(kind, read_table(deployment), values, mismatches, orbits, nav_filter)
     base = load_deployment(str(resolve(deployment)))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     folder = Path(output or base.run.output) / f"sweep-{kind}-{base.run.name}-{stamp}"
-    tables = []
-    for value in values:  # every deployment checked before the first run
-        t = impaired_table(table, kind, value)
-        t.setdefault("run", {})["name"] = f"{base.run.name}-{kind}{value:g}".replace(".", "p")
-        deployment_from_table(t)
-        tables.append(t)
-    paths = [
-        write_deployment(t, folder / "deployments", f"{kind}-{value:g}")
-        for t, value in zip(tables, values, strict=True)
-    ]
     rows: list[dict[str, Any]] = []
-    for value, path in zip(values, paths, strict=True):
-        print(f"ddvi sweep: {kind} = {value:g} ...", file=sys.stderr, flush=True)
-        launcher = Launcher(load_deployment(str(path)), out_root=str(folder), quiet=quiet)
-        status = launcher.execute()
-        summary_path = launcher.out / "summary.json"
-        if not summary_path.is_file():
-            print(f"ddvi sweep: {kind} = {value:g}: no report (status {status}); see "
-                  f"{launcher.out / 'logs'}", file=sys.stderr)  # fmt: skip
-            continue
-        rows.extend(summary_rows(value, json.loads(summary_path.read_text())))
-        _write(kind, rows, folder)  # after every run: an interrupted sweep keeps its rows
+    for point, table, stem in runs:
+        path = write_deployment(table, folder / "deployments", stem)
+        text = ", ".join(f"{k} = {v:g}" for k, v in point.items())
+        print(f"ddvi sweep: {text} ...", file=sys.stderr, flush=True)
+        if in_process:
+            rows.extend(inprocess_rows(point, load_deployment(str(path))))
+        elif (summary := _launch(path, folder, quiet)) is not None:
+            rows.extend(summary_rows(point, summary))
+        # after every run: an interrupted sweep keeps its rows
+        write_table(kind, rows, folder, VELOCITY_NOISE_RATIO)
     if rows:
         plot(kind, rows, folder / "sweep.png")
     return folder, rows
 
 
-def _write(kind: str, rows: list[dict[str, Any]], folder: Path) -> None:
-    """Write sweep.csv and sweep.md of the rows so far."""
-    with open(folder / "sweep.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=COLUMNS)
-        w.writeheader()
-        w.writerows(rows)
-    (folder / "sweep.md").write_text(markdown_table(kind, rows))
-
-
 def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
     """The arguments of ``ddvi sweep``, for ``services.cli``."""
-    p.add_argument("kind", choices=list(KINDS), help="which impairment to sweep")
+    p.add_argument("kind", choices=list(UNITS), help="what to sweep")
     p.add_argument("deployment", nargs="?", default=None, help="default: rendezvous")
-    p.add_argument("--values", type=float, nargs="+", required=True,
-                   help="delays in s, or loss probabilities in [0, 1]")  # fmt: skip
-    p.add_argument("--orbits", type=float, help="override run.orbits (a shorter sweep)")
+    p.add_argument(
+        "--values",
+        type=float,
+        nargs="+",
+        required=True,
+        help="delays in s, loss probabilities in [0, 1], or navigation position "
+        f"noise in m (velocity noise {VELOCITY_NOISE_RATIO:g} (m/s)/m times it)",
+    )
+    p.add_argument(
+        "--mismatch",
+        type=float,
+        nargs="+",
+        default=None,
+        help="noise: factors on the truth's density and facet area (default 1)",
+    )
+    p.add_argument(
+        "--orbits",
+        type=float,
+        nargs="+",
+        help="override run.orbits; noise: one value, or one per --mismatch factor",
+    )
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="noise: run each mission in this process (the services' code, no bus)",
+    )
+    p.add_argument(
+        "--filter",
+        dest="nav_filter",
+        default=None,
+        help="noise: set every deputy's navigation.filter",
+    )
     p.add_argument("--output", help="parent folder (default: the deployment's run.output)")
 
 
@@ -258,24 +357,29 @@ def sweep_command(args: argparse.Namespace) -> int:
     """Run the sweep and print its table; 0 when every run completed, 1 if not, 2 on bad
     input."""
     try:
-        folder, rows = sweep(args.kind, args.deployment, args.values, args.output, args.orbits)
+        folder, rows = sweep(
+            args.kind, args.deployment, args.values, args.output, args.orbits,
+            mismatches=args.mismatch, in_process=args.in_process, nav_filter=args.nav_filter,
+        )  # fmt: skip
     except (DeploymentError, ValueError) as exc:
         print(f"ddvi sweep: {exc}", file=sys.stderr)
         return 2
     if not rows:
         print(f"ddvi sweep: no run produced a report; see {folder}", file=sys.stderr)
         return 1
-    print(markdown_table(args.kind, rows))
-    best = largest_learning_value(rows)
-    if any(r["controller"] == "ddvi" for r in rows):
-        unit = KINDS[args.kind]
+    print(markdown_table(args.kind, rows, VELOCITY_NOISE_RATIO))
+    if args.kind in ("delay", "loss") and any(r["controller"] != "lqr" for r in rows):
+        best = largest_learning_value(rows)
+        unit = UNITS[args.kind]
         print(
-            f"DDVI learned within {SUCCESS:.0%} of the LQR gain at every {args.kind} up to "
-            f"{best:g} {unit}"
+            f"Every learner learned within {SUCCESS:.0%} of the true K* at every {args.kind} "
+            f"up to {best:g} {unit}"
             if best is not None
-            else f"DDVI did not learn within {SUCCESS:.0%} of the LQR gain at the smallest "
-            f"{args.kind}"
+            else f"A learner did not learn within {SUCCESS:.0%} of the true K* at the "
+            f"smallest {args.kind}"
         )
     print(folder)
-    completed = all(r["completed"] for r in rows) and len(rows) >= len(args.values)
+    runs = len({tuple(r[c] for c in POINT[args.kind]) for r in rows})
+    expected = len(args.values) * len(args.mismatch or [1.0])
+    completed = all(r["completed"] for r in rows) and runs >= expected
     return 0 if completed else 1

@@ -1,30 +1,42 @@
 """``ddvi monitor [KEYEXPR]``: a tap on the bus that prints every message, one line each.
 
-    ddvi monitor 'ddvi/<run>/**' [--hub H] [--count N] [--seconds S]
+    ddvi monitor --run RUN [KEYEXPR] [--output ROOT] [--count N] [--seconds S]
+    ddvi monitor 'ddvi/<run>/**' --hub H [--count N] [--seconds S]
 
-A sample that holds a batch prints one line per message; one that does not decode prints why
-it is rejected.  The tap is a plain zenoh subscriber: it records nothing and keeps no state.
+``--run`` finds a run by its folder (what ``ddvi run`` prints) or its name under ``--output``:
+its hub from the folder's ``bus.json`` and, on a secure bus, the observer's credentials (a
+subscribe-only user) from its ``security/`` folder; KEYEXPR defaults to the run's keys.
+``--hub`` taps an insecure bus directly.  A sample that holds a batch prints one line per
+message; one that does not decode prints why it is rejected.  The tap is a plain zenoh
+subscriber: it records nothing and keeps no state.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import queue
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import zenoh
 
-from services.bus import DEFAULT_HUB, EPHEMERAL_LOOPBACK, BusSettings, open_session
+from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
+from services.bus.security import OBSERVER
+from services.ground.credentials import RunNotFoundError, find_run
 from services.interface import MessageError, decode, unpack_batch
 
 
 def add_monitor_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi monitor``, for ``services.cli``."""
-    p.add_argument("keyexpr", nargs="?", default="ddvi/**", help="zenoh key expression")
-    p.add_argument("--hub", default=DEFAULT_HUB, help="zenoh endpoint to connect to")
+    p.add_argument("keyexpr", nargs="?", help="zenoh key expression (default: the run's keys)")
+    p.add_argument("--run", help="the run folder ddvi run prints, or the run's name")
+    p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
+    p.add_argument("--hub", help="an insecure bus's endpoint to connect to (instead of --run)")
     p.add_argument("--count", type=int, default=0, help="stop after N messages (0: no limit)")
     p.add_argument("--seconds", type=float, default=0.0, help="stop after S s (0: no limit)")
     return p
@@ -63,33 +75,68 @@ def format_sample(key: str, payload: bytes) -> list[str]:
     return lines
 
 
-def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None = None) -> int:
-    """``ddvi monitor [KEYEXPR] [--hub H] [--count N] [--seconds S]``: print each message on
-    the bus as one line until Ctrl-C, N messages or S seconds. Returns 0."""
-    emit = out or (lambda line: print(line, flush=True))
-    settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-    count, seconds = int(args.count or 0), float(args.seconds or 0.0)
-    shown = 0
-    with open_session(settings) as session:
-        sub = session.declare_subscriber(
-            args.keyexpr, lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes()))
-        )
-        deadline = time.monotonic() + seconds if seconds > 0 else None
+def _tap_settings(args: argparse.Namespace) -> tuple[BusSettings, str]:
+    """The tap's session settings and key expression, from ``--run`` or ``--hub``; ValueError
+    (one line) when neither names a bus."""
+    if getattr(args, "run", None):
         try:
-            while count <= 0 or shown < count:
-                if deadline is not None and time.monotonic() >= deadline:
-                    break
-                try:
-                    key, payload = inbox.get(timeout=0.1)
-                except queue.Empty:
-                    continue
-                for line in format_sample(key, payload):
-                    if count <= 0 or shown < count:
-                        emit(line)
-                        shown += 1
-        except KeyboardInterrupt:
-            pass
-        finally:
-            sub.undeclare()
+            bus = find_run(args.run, args.output, OBSERVER)
+        except RunNotFoundError as exc:
+            raise ValueError(str(exc)) from exc
+        return bus.settings(), args.keyexpr or f"ddvi/{bus.run}/**"
+    if not args.hub:
+        raise ValueError("give --run RUN (the run folder ddvi run prints) or an insecure --hub")
+    settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
+    return settings, args.keyexpr or "ddvi/**"
+
+
+def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None = None) -> int:
+    """``ddvi monitor [KEYEXPR] {--run RUN | --hub H} [--count N] [--seconds S]``: print each
+    message on the bus as one line until Ctrl-C, N messages or S seconds. Returns 0; 2 for no
+    bus named, 1 for a bus that refuses or cannot be reached."""
+    emit = out or (lambda line: print(line, flush=True))
+    try:
+        settings, keyexpr = _tap_settings(args)
+        zenoh.KeyExpr(keyexpr)
+    except (ValueError, zenoh.ZError) as exc:
+        print(f"ddvi monitor: {str(exc).split(' at /')[0]}", file=sys.stderr)
+        return 2
+    with contextlib.ExitStack() as stack:
+        try:
+            session = stack.enter_context(open_session(settings))
+        except zenoh.ZError as exc:
+            first = (str(exc).splitlines() or ["refused"])[0]
+            print(f"ddvi monitor: cannot connect to {settings.connect[0]} ({first})",
+                  file=sys.stderr)  # fmt: skip
+            return 1
+        _print_samples(session, keyexpr, emit, int(args.count or 0), float(args.seconds or 0.0))
     return 0
+
+
+def _print_samples(
+    session: zenoh.Session, keyexpr: str, emit: Callable[[str], None], count: int, seconds: float
+) -> None:
+    """Print what ``keyexpr`` hears, a line a message, until ``count`` lines (0: no limit),
+    ``seconds`` s (0: no limit) or Ctrl-C."""
+    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    shown = 0
+    sub = session.declare_subscriber(
+        keyexpr, lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes()))
+    )
+    deadline = time.monotonic() + seconds if seconds > 0 else None
+    try:
+        while count <= 0 or shown < count:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            try:
+                key, payload = inbox.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            for line in format_sample(key, payload):
+                if count <= 0 or shown < count:
+                    emit(line)
+                    shown += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sub.undeclare()

@@ -122,7 +122,14 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
             "x_hill": Array(
                 (6,),
                 unit="m, m/s",
-                doc="[x, y, z, xdot, ydot, zdot] relative to the chief, with noise and bias",
+                doc="[x, y, z, xdot, ydot, zdot] relative to the chief: the filter's estimate "
+                "(navigation.filter), or the measurement with its noise; with the bias",
+            ),
+            "cov": Array(
+                (6, 6),
+                unit="m^2, m^2/s, m^2/s^2",
+                doc="x_hill's error covariance, position block m^2, cross m^2/s, velocity "
+                "m^2/s^2 (the white noise's only: a bias is not in it; zero without noise)",
             ),
             "altitude": Float(unit="m", doc="the deputy's own altitude above R_E"),
             "valid": Bool(doc="the sample is a navigation solution (always true)"),

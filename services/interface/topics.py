@@ -297,3 +297,29 @@ def topics_published_by(service: str) -> tuple[str, ...]:
 def topics_subscribed_by(service: str) -> tuple[str, ...]:
     """The topics ``service`` subscribes, as key expressions below ``ddvi/<run>/``."""
     return _keys(service, "subscribers")
+
+
+@functools.lru_cache(maxsize=256)
+def _topic_pattern(template: str) -> re.Pattern[str]:
+    """A TOPOLOGY topic template as a regular expression, one key chunk per placeholder."""
+    return re.compile(_PLACEHOLDER.sub("[^/]+", re.escape(template).replace(r"\<", "<")))
+
+
+@functools.lru_cache(maxsize=4096)  # (publisher, topic) pairs of a run: a few dozen
+def may_publish(service: str, topic: str) -> bool | None:
+    """Whether the topology lets ``service`` publish ``topic`` (a concrete topic below
+    ``ddvi/<run>/``, e.g. ``cmd/lqr/att``): True, False (the topic is another's), or None for a
+    topic outside the topology (nobody owns it)."""
+    owned = False
+    for route in TOPOLOGY:
+        if not _topic_pattern(route.topic).fullmatch(topic):
+            continue
+        owned = True
+        for template in route.publishers:
+            match = _name_pattern(template).fullmatch(service)
+            if match is None:
+                continue
+            names = {**match.groupdict(), "service": service}
+            if _topic_pattern(_fill(route.topic, names).replace("*", "<any>")).fullmatch(topic):
+                return True
+    return False if owned else None

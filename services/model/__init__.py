@@ -1,5 +1,6 @@
 """The bridge between a deployment and the mathematics: mission timing and exosystem, the
-nominal linear model and its LQR gains, initial states and slot holding (``mission``), and
+nominal linear model and its LQR gains, the truth's linear model and its optimal gains (the
+reference a learned gain is scored against), initial states and slot holding (``mission``), and
 the truth backends behind one protocol (``truth``: the protocol and the built-in propagator;
 ``basilisk``; ``backends.open_truth`` chooses).
 
@@ -25,6 +26,8 @@ from services.model.mission import (
     on_grid,
     orbit_period,
     panel_schedule,
+    true_lqr_gains,
+    true_problem,
 )
 from services.model.truth import (
     BuiltinTruth,
@@ -55,6 +58,8 @@ __all__ = [
     "open_truth",
     "orbit_period",
     "panel_schedule",
+    "true_lqr_gains",
+    "true_problem",
     "truth_atmosphere",
     "truth_craft",
     "truth_step",

@@ -92,15 +92,53 @@ def nominal_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
     return rendezvous_problem(nominal_params(dep, deputy))
 
 
-def lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
-    """K (1,4) and L (1,5) of the model-based baseline from the nominal model."""
+def _optimal_gains(pr: RegulationProblem) -> tuple[NDArray, NDArray]:
+    """K (1,4) and L (1,5): the Riccati gain and the regulator feedforward of ``pr``."""
     from ddvi_core.lqr import solve_lqr
     from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
 
-    pr = nominal_problem(dep, deputy)
     K = solve_lqr(pr.A, pr.B, pr.Q, pr.R).K
     X, U = solve_regulator_equations(pr.A, pr.B, pr.C, pr.D, pr.E, pr.F)
     return K, feedforward_gain(K, X, U)
+
+
+def lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
+    """K (1,4) and L (1,5) of the model-based baseline from the nominal model."""
+    return _optimal_gains(nominal_problem(dep, deputy))
+
+
+def true_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
+    """The truth's own linear model of the deputy's run: the nominal model rebuilt with the
+    truth's density (rho0 x environment.density_factor) and the deputy's true facet area
+    (area x its area_factor), and D carrying the constant differential drag between the
+    deputy and the chief (whose true area is the nominal one) in the along-track row.  The
+    reference a learned gain is scored against; nobody flies it.  At the chief's initial
+    altitude and before any panel fault.  Raises ValueError when the truth has no drag (no
+    input, so no optimal gain)."""
+    import dataclasses
+
+    from ddvi_core.models import drag_sensitivity, rendezvous_problem
+
+    if not dep.environment.drag:
+        raise ValueError("the truth has no drag (environment.drag = false): no optimal gain")
+    nominal = nominal_params(dep, deputy)
+    params = nominal.with_(
+        rho0=nominal.rho0 * dep.environment.density_factor,
+        area=nominal.area * deputy.area_factor,
+    )
+    pr = rendezvous_problem(params)
+    beta_d, _ = drag_sensitivity(params.mass, params.area, params.cd, params.normal_angle)
+    beta_c, _ = drag_sensitivity(nominal.mass, nominal.area, nominal.cd, nominal.normal_angle)
+    v = params.mean_motion * params.a_chief
+    D = pr.D.copy()
+    D[3, 0] -= 0.5 * params.density * v**2 * (beta_d - beta_c)
+    return dataclasses.replace(pr, D=D, name="rendezvous-truth")
+
+
+def true_lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
+    """K* (1,4) and L* (1,5): the optimal gains of :func:`true_problem`, the reference every
+    learned gain is scored against (equal to :func:`lqr_gains` when the truth is nominal)."""
+    return _optimal_gains(true_problem(dep, deputy))
 
 
 def navigation_state(

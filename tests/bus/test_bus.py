@@ -36,7 +36,13 @@ TIMEOUT = 5.0
 
 
 def nav_body(x: float = 0.0) -> dict[str, Any]:
-    return {"sc": "deputy1", "x_hill": np.full(6, x), "altitude": 300e3, "valid": True}
+    return {
+        "sc": "deputy1",
+        "x_hill": np.full(6, x),
+        "cov": np.eye(6),
+        "altitude": 300e3,
+        "valid": True,
+    }
 
 
 Inbox = queue.Queue[tuple[str, Message]]
@@ -124,9 +130,11 @@ def test_published_message_arrives_decoded(
         np.testing.assert_array_equal(msg.body["x_hill"], np.full(6, 1.5))
         assert inbox.get(timeout=TIMEOUT)[1].seq == second
         assert tx.publish("nav/deputy2/state", "nav", nav_body(), t=0.0) == 0  # per-topic seq
-        assert inbox.get(timeout=TIMEOUT)[0] == "nav/deputy2/state"
+        # another deputy's navigation state: not this publisher's topic, refused and counted
+        assert wait_until(lambda: rx.counters["rejected.src"] == 1)
+        assert inbox.empty()
         assert tx.counters["sent"] >= 3
-        assert rx.counters["received"] == rx.counters["delivered"] >= 3
+        assert rx.counters["received"] == rx.counters["delivered"] >= 2
 
 
 def test_garbage_is_rejected_counted_and_subscriber_survives(
@@ -273,15 +281,15 @@ def test_deployment_link_rules_apply_per_publisher(
     hub, svc = sessions
     inbox: Inbox = queue.Queue()
     seen: Inbox = queue.Queue()
-    rules = [LinkRule("nav-*", "nav/*/state", LinkSpec(delay=10.0))]
+    rules = [LinkRule("nav-deputy1", "nav/*/state", LinkSpec(delay=10.0))]
     with (
         Bus(hub, run, "controller", links=rules) as rx,
         Bus(svc, run, "nav-deputy1") as nav,
-        Bus(svc, run, "spoofer") as other,
+        Bus(svc, run, "nav-deputy2") as other,
     ):
         rx.subscribe("nav/*/state", queue_handler(inbox), "nav", observe=queue_handler(seen))
         assert rx.latency("nav-deputy1", "nav/deputy1/state") == 10.0
-        assert rx.latency("spoofer", "nav/deputy1/state") == 0.0
+        assert rx.latency("nav-deputy2", "nav/deputy2/state") == 0.0
         connect(nav, seen, "nav/deputy1/state")
         while not seen.empty():
             seen.get_nowait()
@@ -290,9 +298,9 @@ def test_deployment_link_rules_apply_per_publisher(
         rx.pump(sim_time=100.0)
         inbox.queue.clear()
         nav.publish("nav/deputy1/state", "nav", nav_body(1.0), t=200.0)
-        other.publish("nav/deputy1/state", "nav", nav_body(2.0), t=200.0)
+        other.publish("nav/deputy2/state", "nav", nav_body(2.0), t=200.0)
         assert [seen.get(timeout=TIMEOUT)[1].src for _ in range(2)].count("nav-deputy1") == 1
-        assert inbox.get(timeout=TIMEOUT)[1].src == "spoofer"  # no rule: straight through
+        assert inbox.get(timeout=TIMEOUT)[1].src == "nav-deputy2"  # no rule: straight through
         assert inbox.empty()
         assert rx.pump(sim_time=209.0) == 0
         assert rx.pump(sim_time=210.0) == 1  # sent at 200, 10 s link
@@ -431,7 +439,11 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
     probe: Inbox = queue.Queue()
     key = f"ddvi/{run}/nav/deputy1/state"
     rules = [LinkRule("nav-*", "nav/deputy2/state", LinkSpec(duplicate=1.0))]
-    with Bus(hub, run, "controller", links=rules) as rx, Bus(svc, run, "nav-deputy1") as tx:
+    with (
+        Bus(hub, run, "controller", links=rules) as rx,
+        Bus(svc, run, "nav-deputy1") as tx,
+        Bus(svc, run, "nav-deputy2") as tx2,
+    ):
         rx.subscribe("probe", queue_handler(probe))
         rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav")
         rx.subscribe("nav/deputy2/state", queue_handler(dups), "nav")
@@ -449,7 +461,7 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
         svc.put(key, old, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_until(lambda: rx.counters["rejected.stale"] == 1)
         for _ in range(5):  # at t = 0: due at once, each with its copy
-            tx.publish("nav/deputy2/state", "nav", nav_body(4.0), t=0.0)
+            tx2.publish("nav/deputy2/state", "nav", nav_body(4.0), t=0.0)
         assert [dups.get(timeout=TIMEOUT)[1].seq for _ in range(5)] == list(range(5))
         assert wait_until(lambda: rx.counters["rejected.duplicate"] == 1 + 5)
         c = rx.counters

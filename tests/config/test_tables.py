@@ -138,7 +138,8 @@ def test_system_file_and_deployment_read_the_same_learning_config() -> None:
     gives only its own keys, the deployment over the mission's defaults."""
     base = {"A": [[0.0, 1.0], [0.0, 0.0]], "B": [[0.0], [1.0]], "Q": [[1.0, 0.0], [0.0, 1.0]]}
     system = system_from_table({**base, "R": [[1.0]], "learning": {"step_size": 0.5}})
-    assert system.learning == LearningConfig(step_size=0.5)
+    assert isinstance(system.learning, LearningConfig) and system.learning.step_size == 0.5
+    assert system.given == ("step_size",) and "step_size" not in system.derived  # rest derived
     dep = deployment_from_table({"deputy": [{"name": "a", "learning": {"relearn": True}}]})
     learning = dep.deputy[0].learning
     assert isinstance(learning, LearningConfig) and learning.relearn

@@ -175,6 +175,7 @@ class Mission:
             nav = {
                 "sc": sc,
                 "x_hill": rv_to_hill(rc, vc, rd, vd) + 0.01,
+                "cov": np.eye(6) * 1e-4,
                 "altitude": 300e3,
                 "valid": True,
             }
@@ -390,6 +391,7 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
             body = {
                 "sc": "alpha",
                 "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3],
+                "cov": np.eye(6).tolist(),
                 "altitude": 300e3,
                 "valid": True,
             }

@@ -26,7 +26,13 @@ def test_simulation_time_as_mcap_nanoseconds_is_clamped() -> None:
 
 
 def test_a_recording_reads_back_message_rejection_and_liveliness(tmp_path: Path) -> None:
-    body = {"sc": "alpha", "x_hill": np.arange(6.0), "altitude": 300e3, "valid": True}
+    body = {
+        "sc": "alpha",
+        "x_hill": np.arange(6.0),
+        "cov": np.eye(6),
+        "altitude": 300e3,
+        "valid": True,
+    }
     msg = decode(encode("nav", body, seq=4, t=12.5, src="nav-alpha"), "nav")
     rec = Recorder(tmp_path / "recording.mcap", {"run": "r"}, attachment=None)
     rec.message(topics.nav_state_topic("alpha"), msg, log_ns=10**18)

@@ -1,4 +1,5 @@
-"""ddvi sweep: the impaired deployments it derives, its table, and a short real sweep."""
+"""ddvi sweep: the impaired and noisy deployments it derives, its table, and short real
+sweeps (a link sweep through the launcher, a noise and mismatch sweep in process)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,21 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from services.config import deployment_from_table
-from services.ground.sweep import impaired_table, largest_learning_value, summary_rows
+from services.cli import main
+from services.config import deployment_from_table, load_deployment, read_table
+from services.ground.sweep import (
+    VELOCITY_NOISE_RATIO,
+    impaired_table,
+    largest_learning_value,
+    noisy_table,
+    summary_rows,
+    sweep,
+    sweep_points,
+)
+from services.model import lqr_gains, true_lqr_gains
 
 SHORT = """
 [run]
@@ -49,7 +61,7 @@ def test_each_impaired_table_is_its_own() -> None:
 def test_largest_learning_value_stops_at_the_first_failure() -> None:
     def row(value: float, learned: bool, error: float | None = 0.01) -> dict:
         return {"value": value, "controller": "ddvi", "learned": learned, "completed": True,
-                "gain_error_vs_lqr": error if learned else None}  # fmt: skip
+                "gain_error": error if learned else None}  # fmt: skip
 
     rows = [row(0, True), row(60, True), row(120, False), row(180, True)]
     assert largest_learning_value(rows) == 60
@@ -85,11 +97,76 @@ def test_a_fallback_to_old_gains_is_not_learning() -> None:
     deputy = {
         "controller": "ddvi", "phase": "learned", "final_along_track_error_m": 673.0,
         "max_along_track_error_last_orbit_m": 3363.0, "learned_at_orbits": 15.0,
-        "gain_error_vs_lqr": 0.003, "gains": {"source": "fallback"},
+        "gain_error_vs_lqr": 0.003, "gain_error_vs_true_optimum": 0.002,
+        "gains": {"source": "fallback"},
     }  # fmt: skip
     summary = {"completed": True, "messages": {"services": {}}, "deputies": {"ddvi": deputy}}
-    (row,) = summary_rows(0.0, summary)
-    assert row["learned"] is False and row["gain_error_vs_lqr"] is None
+    (row,) = summary_rows({"value": 0.0}, summary)
+    assert row["learned"] is False and row["gain_error"] is None
+    assert row["gain_error_vs_lqr"] is None
     deputy["gains"] = {"source": "ddvi"}
-    (row,) = summary_rows(0.0, summary)
-    assert row["learned"] is True and row["gain_error_vs_lqr"] == 0.003
+    (row,) = summary_rows({"value": 0.0}, summary)
+    assert row["learned"] is True and row["gain_error"] == 0.002
+    assert row["gain_error_vs_lqr"] == 0.003
+
+
+def test_noisy_table_sets_noise_and_scales_the_truth_as_mismatch_2x_does() -> None:
+    table = read_table(None)
+    dep = deployment_from_table(noisy_table(table, 1.0, 2.0))
+    assert dep.environment.density_factor == 2.0
+    for d in dep.deputy:
+        assert d.area_factor == 2.0
+        assert d.navigation.position_noise == 1.0
+        assert d.navigation.velocity_noise == pytest.approx(VELOCITY_NOISE_RATIO)
+    # the same truth as deployments/mismatch-2x.toml: the same true K*
+    reference = load_deployment("mismatch-2x")
+    np.testing.assert_allclose(
+        true_lqr_gains(dep, dep.deputy[0])[0], true_lqr_gains(reference, reference.deputy[0])[0]
+    )
+    assert table["environment"]["density_factor"] == 1.0  # the input is left alone
+
+
+def test_sweep_points_give_each_mismatch_its_orbits_and_refuse_a_wrong_count() -> None:
+    table = read_table(None)
+    runs = sweep_points("noise", table, [0.0, 1.0], [1.0, 2.0], [40.0, 30.0])
+    assert [(p["noise"], p["mismatch"], t["run"]["orbits"]) for p, t, _ in runs] == [
+        (0.0, 1.0, 40.0), (1.0, 1.0, 40.0), (0.0, 2.0, 30.0), (1.0, 2.0, 30.0),
+    ]  # fmt: skip
+    assert len({t["run"]["name"] for _, t, _ in runs}) == 4
+    with pytest.raises(ValueError, match="one per --mismatch"):
+        sweep_points("noise", table, [0.0], [1.0, 2.0], [40.0, 30.0, 20.0])
+    with pytest.raises(ValueError, match="sweep noise"):
+        sweep_points("delay", table, [0.0], [2.0])
+
+
+def test_in_process_is_refused_for_link_sweeps(capsys: pytest.CaptureFixture) -> None:
+    assert main(["sweep", "delay", "--values", "0", "--in-process"]) == 2
+    assert "--in-process" in capsys.readouterr().err
+
+
+def test_short_noise_and_mismatch_sweep_in_process(tmp_path: Path) -> None:
+    """Two orbits of the default mission at 0 and 1 m noise, nominal and 2x: the LQR rows are
+    scored against the truth's K* (0 nominal, 0.68 at 2x: the nominal gain is that far from
+    the truth's), the noise reaches the controllers, and the table and plot are written."""
+    folder, rows = sweep("noise", None, [0.0, 1.0], str(tmp_path), 2.0, mismatches=[1.0, 2.0],
+                         in_process=True)  # fmt: skip
+    assert [(r["noise"], r["mismatch"], r["deputy"]) for r in rows] == [
+        (v, f, d) for f in (1.0, 2.0) for v in (0.0, 1.0) for d in ("lqr", "ddvi")
+    ]
+    assert all(r["completed"] for r in rows)
+    lqr = {(r["noise"], r["mismatch"]): r["gain_error"] for r in rows if r["deputy"] == "lqr"}
+    dep = load_deployment("mismatch-2x")
+    K, K_true = lqr_gains(dep, dep.deputy[0])[0], true_lqr_gains(dep, dep.deputy[0])[0]
+    gap = np.linalg.norm(K - K_true) / np.linalg.norm(K_true)
+    assert lqr == {(0.0, 1.0): 0.0, (1.0, 1.0): 0.0, (0.0, 2.0): gap, (1.0, 2.0): gap}
+    ddvi = [r for r in rows if r["deputy"] == "ddvi"]
+    assert not any(r["learned"] for r in ddvi) and all(r["gain_error"] is None for r in ddvi)
+    assert all(r["note"] == "no learning attempt" for r in ddvi)  # it learns at orbit 15
+    for path in (folder / "deployments").glob("noise-1-*.toml"):  # what the runs flew
+        assert {d.navigation.position_noise for d in load_deployment(str(path)).deputy} == {1.0}
+    csv_rows = list(csv.DictReader((folder / "sweep.csv").read_text().splitlines()))
+    assert len(csv_rows) == 8 and csv_rows[0]["noise"] == "0.0"
+    assert "| nav noise (m) | mismatch |" in (folder / "sweep.md").read_text()
+    assert (folder / "sweep.png").stat().st_size > 0
+    assert len(list((folder / "deployments").glob("*.toml"))) == 4
+    assert len(list((folder / "deployments").glob("noise-1-*.toml"))) == 2

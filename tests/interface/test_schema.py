@@ -34,7 +34,13 @@ SAMPLES: dict[str, dict[str, Any]] = {
         "sigma_BN": np.zeros(3),
     },
     "exo": {"v": np.arange(5.0), "phase": 0.3},
-    "nav": {"sc": "deputy1", "x_hill": np.linspace(-1, 1, 6), "altitude": 300e3, "valid": True},
+    "nav": {
+        "sc": "deputy1",
+        "x_hill": np.linspace(-1, 1, 6),
+        "cov": np.eye(6),
+        "altitude": 300e3,
+        "valid": True,
+    },
     "cmd": {"sc": "deputy1", "sigma": [0.0, 0.0, 0.15], "for_t": 120.0},
     "gains": {
         "sc": "deputy1",
@@ -72,7 +78,13 @@ def raw(body: Any = None, **header: Any) -> bytes:
         "seq": 0,
         "t": 0.0,
         "src": "test",
-        "body": {"sc": "d1", "x_hill": [0.0] * 6, "altitude": 300e3, "valid": True}
+        "body": {
+            "sc": "d1",
+            "x_hill": [0.0] * 6,
+            "cov": [[0.0] * 6] * 6,
+            "altitude": 300e3,
+            "valid": True,
+        }
         if body is None
         else body,
     }
@@ -192,7 +204,8 @@ def test_unknown_and_wrong_schema_and_version() -> None:
 
 def nav(**fields: Any) -> dict[str, Any]:
     """A nav body with fields replaced (a value of ... removes the field)."""
-    body = {"sc": "d", "x_hill": [0.0] * 6, "altitude": 300e3, "valid": True, **fields}
+    body = {"sc": "d", "x_hill": [0.0] * 6, "cov": [[0.0] * 6] * 6, "altitude": 300e3,
+            "valid": True, **fields}  # fmt: skip
     return {k: v for k, v in body.items() if v is not ...}
 
 
@@ -483,8 +496,8 @@ def test_compiled_encode_agrees_on_numpy_values(field: str, value: Any) -> None:
 
 
 def test_compiled_encode_takes_numpy_scalars() -> None:
-    body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "altitude": np.float64(3e5),
-            "valid": np.bool_(True)}  # fmt: skip
+    body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "cov": np.zeros((6, 6)),
+            "altitude": np.float64(3e5), "valid": np.bool_(True)}  # fmt: skip
     assert codec_module._COMPILED["nav"].wire(body) is not None
     payload = encode("nav", body, seq=1, t=2.0, src="svc")
     assert payload == _by_field_kinds(lambda: encode("nav", body, seq=1, t=2.0, src="svc"))

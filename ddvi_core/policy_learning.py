@@ -1,0 +1,195 @@
+"""Data-driven policy iteration and the hybrid of value and policy iteration, on the same
+regression as the paper's Algorithm 2.
+
+The regression of :mod:`ddvi_core.regression` gives, from data alone, two linear maps of P:
+H(P) = A^T P + P A and K(P) = R^-1 B^T P.  Kleinman's policy iteration on data (Jiang and
+Jiang, Automatica 2012) evaluates a gain K_k by solving, for P_k,
+
+    H(P) - K_k^T R K(P) - K(P)^T R K_k + Q + K_k^T R K_k = 0
+
+(the Lyapunov equation of A - B K_k, here a linear system of n(n+1)/2 equations in vecs(P)
+assembled from the maps), then improves it: K_{k+1} = K(P_k).  It converges quadratically
+from a stabilising K0, and the evaluation says whether a gain stabilises: its P is positive
+definite then (Q > 0, or (A, Q^1/2) observable), indefinite or undefined otherwise.
+
+The hybrid needs no stabilising K0: it starts with policy iteration when K0 stabilises;
+otherwise it runs value iteration (the adaptive step) and evaluates each iterate's gain, and
+switches to policy iteration at the first whose P is positive definite.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ddvi_core.regression import RiccatiMap, implied_plant
+from ddvi_core.value_iteration import (
+    BoundSchedule,
+    ClosedLoop,
+    StepSequence,
+    value_iteration_loop,
+)
+
+__all__ = [
+    "LEARNING_METHODS",
+    "basis_images",
+    "is_positive_definite",
+    "iterate",
+    "policy_evaluation",
+    "policy_iteration_loop",
+]
+
+LEARNING_METHODS = ("vi", "pi", "hybrid")
+
+LoopResult = tuple[NDArray, NDArray, int, int, bool, float, NDArray, str]
+
+
+def basis_images(riccati_map: RiccatiMap) -> tuple[NDArray, NDArray]:
+    """(H(E_l) (t, n, n), K(E_l) (t, m, n)) for the basis E_l of symmetric matrices in vecs's
+    upper-triangle order (t = n(n+1)/2): the maps once, so an evaluation is one solve."""
+    n = riccati_map.n
+    Hs, Ks = [], []
+    for i, j in zip(*np.triu_indices(n), strict=True):
+        E = np.zeros((n, n))
+        E[i, j] = E[j, i] = 1.0
+        H, KE = riccati_map(E)
+        Hs.append(H)
+        Ks.append(KE)
+    return np.array(Hs), np.array(Ks)
+
+
+def policy_evaluation(
+    images: tuple[NDArray, NDArray], Q_s: NDArray, R_s: NDArray, K: NDArray
+) -> NDArray | None:
+    """P (n, n) solving the data's Lyapunov equation of the gain K (m, n) (module docstring)
+    from the maps' ``images`` (:func:`basis_images`), or None when that equation is singular
+    (a closed-loop eigenvalue pair sums to zero)."""
+    n = Q_s.shape[0]
+    rows, cols = np.triu_indices(n)
+    H_b, K_b = images
+    cross = np.einsum("ik,ekj->eij", K.T @ R_s, K_b)
+    M = (H_b - cross - cross.transpose(0, 2, 1))[:, rows, cols].T
+    rhs = -(Q_s + K.T @ R_s @ K)[rows, cols]
+    with np.errstate(all="ignore"):
+        try:
+            p = np.linalg.solve(M, rhs)
+        except np.linalg.LinAlgError:
+            return None
+    if not np.all(np.isfinite(p)):
+        return None
+    P = np.zeros((n, n))
+    P[rows, cols] = p
+    return P + np.triu(P, 1).T
+
+
+def is_positive_definite(P: NDArray | None) -> bool:
+    return P is not None and bool(np.linalg.eigvalsh(P)[0] > 0)
+
+
+def policy_iteration_loop(
+    riccati_map: RiccatiMap,
+    Q_s: NDArray,
+    R_s: NDArray,
+    K0_s: NDArray,
+    tol: float,
+    max_iterations: int,
+    images: tuple[NDArray, NDArray] | None = None,
+) -> LoopResult:
+    """Kleinman's iteration on the data's maps from the gain K0_s (m, n), stopping when
+    |P_k - P_{k-1}| <= tol |P_k|.  Returns the tuple of
+    :func:`ddvi_core.value_iteration.value_iteration_loop`; history holds |P_k - P_{k-1}|."""
+    images = basis_images(riccati_map) if images is None else images
+    K, P_prev = K0_s, None
+    history = []
+    for k in range(1, max_iterations + 1):
+        P = policy_evaluation(images, Q_s, R_s, K)
+        if not is_positive_definite(P):
+            why = (
+                "the gain does not stabilise the closed loop the data imply (its policy "
+                f"evaluation's P is not positive definite) at policy iteration {k}: give a "
+                "stabilising learning.K0 or use the hybrid method"
+            )
+            return P_prev if P_prev is not None else Q_s, K, k, 0, False, math.inf, \
+                np.array(history), why  # fmt: skip
+        K = riccati_map(P)[1]
+        if P_prev is not None:
+            history.append(float(np.linalg.norm(P - P_prev)))
+            if history[-1] <= tol * float(np.linalg.norm(P)):
+                return P, K, k, 0, True, history[-1], np.array(history), ""
+        P_prev = P
+    why = f"|P_k - P_k-1| / |P_k| = {history[-1] / np.linalg.norm(P_prev):.3g} > tol {tol:g}"
+    return P_prev, K, max_iterations, 0, False, history[-1], np.array(history), why
+
+
+def _hybrid(
+    riccati_map: RiccatiMap,
+    Q_s: NDArray,
+    R_s: NDArray,
+    P0_s: NDArray,
+    K0_s: NDArray,
+    steps: StepSequence,
+    bounds: BoundSchedule,
+    tol: float,
+    max_iterations: int,
+    closed_loop: ClosedLoop,
+) -> LoopResult:
+    """Value iteration until its gain's policy evaluation is positive definite, then policy
+    iteration from that gain (from K0_s at once if it stabilises)."""
+    images = basis_images(riccati_map)
+    K, vi_iterations, resets = K0_s, 0, 0
+    if not is_positive_definite(policy_evaluation(images, Q_s, R_s, K0_s)):
+        P = P0_s
+        for vi_iterations in range(1, max_iterations + 1):  # noqa: B007 (used after)
+            P, K, _, r, _, _, _, why = value_iteration_loop(
+                riccati_map, Q_s, R_s, P, steps, bounds, 0.0, 1, closed_loop=closed_loop,
+                rule="relative",
+            )  # fmt: skip
+            resets += r
+            if is_positive_definite(policy_evaluation(images, Q_s, R_s, K)):
+                break
+        else:
+            why = f"no value-iteration gain stabilised the closed loop in {max_iterations} steps"
+            return P, K, max_iterations, resets, False, math.inf, np.zeros(0), why
+    out = policy_iteration_loop(
+        riccati_map, Q_s, R_s, K, tol, max(1, max_iterations - vi_iterations), images
+    )
+    return (*out[:2], out[2] + vi_iterations, resets, *out[4:])
+
+
+def iterate(
+    method: str,
+    riccati_map: RiccatiMap,
+    Q_s: NDArray,
+    R_s: NDArray,
+    P0_s: NDArray,
+    K0_s: NDArray,
+    steps: StepSequence,
+    bounds: BoundSchedule,
+    tol: float,
+    max_iterations: int,
+    rule: str,
+) -> LoopResult:
+    """The learner's iteration by ``method`` (one of :data:`LEARNING_METHODS`), in scaled
+    units: value iteration from P0_s (n, n), policy iteration from K0_s (m, n), or the hybrid.
+    The step and stopping rules read the closed loop's eigenvalues off the matrices the data's
+    map implies (:func:`ddvi_core.regression.implied_plant`), never A or B.
+    """
+    A_d, B_d = implied_plant(riccati_map, R_s)
+
+    def closed_loop(K_s: NDArray) -> NDArray:
+        return np.linalg.eigvals(A_d - B_d @ K_s)
+
+    if method == "vi":
+        return value_iteration_loop(
+            riccati_map, Q_s, R_s, P0_s, steps, bounds, tol, max_iterations,
+            closed_loop=closed_loop, rule=rule,
+        )  # fmt: skip
+    if method == "pi":
+        return policy_iteration_loop(riccati_map, Q_s, R_s, K0_s, tol, max_iterations)
+    if method == "hybrid":
+        return _hybrid(
+            riccati_map, Q_s, R_s, P0_s, K0_s, steps, bounds, tol, max_iterations, closed_loop
+        )
+    raise ValueError(f"method must be one of {', '.join(LEARNING_METHODS)}, got {method!r}")

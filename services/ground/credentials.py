@@ -1,0 +1,143 @@
+"""A run's bus, as the launcher sets it up and the ground's commands find it.
+
+The launcher writes ``<run folder>/bus.json`` (the run's name, its hub endpoint, whether the bus
+is secure: no secrets) and, on a secure bus (``bus.security``, the default), every participant's
+credentials in ``<run folder>/security/`` (``services.bus.security``).  ``ddvi fault`` and
+``ddvi monitor`` find a run by its name or its folder (``find_run``) and connect with the
+operator's or the observer's credentials from there.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from services.bus import BusSettings
+from services.bus.security import (
+    BUS_FILE,
+    DICTIONARY,
+    OBSERVER,
+    OPERATOR,
+    ROUTER,
+    SECURITY_DIR,
+    Credentials,
+    access_control,
+    credentials_path,
+    issue_credentials,
+    issue_tls,
+    load_credentials,
+)
+from services.config import Deployment
+
+
+def hub_settings(
+    dep: Deployment, run: str, out: Path, listen: list[str], services: list[str]
+) -> BusSettings:
+    """Write the run folder's ``bus.json`` and, on a secure bus, the credentials of every
+    service, the operator and the observer; return the hub's settings (a router with the
+    dictionary and the access control on a secure bus, else what ``bus.mode`` says).
+    ``listen``: the loopback endpoint, then one on each other host's link (made TLS on a
+    secure bus, with the run's certificates)."""
+    out.mkdir(parents=True, exist_ok=True)
+    secure = dep.bus.security
+    hosts = [e.split("/", 1)[1].rsplit(":", 1)[0] for e in listen[1:]]
+    if secure and hosts:
+        listen = [listen[0], *(host_endpoint(dep, a, e.rsplit(":", 1)[1])
+                               for a, e in zip(hosts, listen[1:], strict=True))]  # fmt: skip
+    info = {"run": run, "hub": listen[0], "listen": listen, "security": secure}
+    (out / BUS_FILE).write_text(json.dumps(info, indent=1) + "\n")
+    connect = list(dep.bus.connect)
+    if not secure:
+        return BusSettings(mode="router" if dep.bus.mode == "client" else "peer",
+                           listen=listen, connect=connect)  # fmt: skip
+    users = [*services, OPERATOR, OBSERVER]
+    router_tls, client_tls = issue_tls(out, hosts) if hosts else ({}, {})
+    router = issue_credentials(out, users, client_tls)[ROUTER]
+    return BusSettings(
+        mode="router",
+        listen=listen,
+        connect=connect,
+        user=router.user,
+        password=router.password,
+        dictionary=str(out / SECURITY_DIR / DICTIONARY),
+        access_control=access_control(run, users),
+        tls=router_tls,
+    )
+
+
+def host_endpoint(dep: Deployment, address: str, port: int | str) -> str:
+    """The hub's endpoint on another host's link: TLS on a secure bus, else TCP."""
+    return f"{'tls' if dep.bus.security else 'tcp'}/{address}:{port}"
+
+
+def service_arguments(dep: Deployment, out: Path, name: str) -> list[str]:
+    """The command-line arguments that hand a service its credentials (none when insecure)."""
+    return ["--credentials", str(credentials_path(out, name))] if dep.bus.security else []
+
+
+def client_settings(
+    hub: str, credentials: Credentials | None, extra: tuple[str, ...] = ()
+) -> BusSettings:
+    """A participant's settings: on a secure bus a client of the hub with ``credentials``,
+    listening on nothing; else a peer of the hub on an ephemeral loopback port."""
+    connect = [hub, *extra]
+    if credentials is None:
+        return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
+    return BusSettings(mode="client", listen=[], connect=connect, user=credentials.user,
+                       password=credentials.password, tls=credentials.tls)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RunBus:
+    """What a ground command needs to reach a running run: its name, its hub and, on a secure
+    bus, the credentials of the user it connects as."""
+
+    run: str
+    hub: str
+    credentials: Credentials | None
+
+    def settings(self) -> BusSettings:
+        return client_settings(self.hub, self.credentials)
+
+
+class RunNotFoundError(ValueError):
+    """No run folder (or no readable bus description) for the name given; says where it looked."""
+
+
+def _folder(run: str, output: str) -> Path:
+    """The run folder that ``run`` names: a folder path, or a run name under ``output``."""
+    as_path = Path(run)
+    if (as_path / BUS_FILE).is_file():
+        return as_path
+    under = Path(output) / run
+    if (under / BUS_FILE).is_file():
+        return under
+    raise RunNotFoundError(
+        f"no run {run!r}: neither {as_path / BUS_FILE} nor {under / BUS_FILE} exists (give the "
+        "run folder ddvi run printed, or its name with --output ROOT)"
+    )
+
+
+def find_run(run: str, output: str, user: str) -> RunBus:
+    """The bus of the run named ``run`` (a run folder, or a run name under ``output``), with
+    ``user``'s credentials when it is secure (``OPERATOR``, ``OBSERVER``).  Raises
+    ``RunNotFoundError`` with one line saying what is missing."""
+    folder = _folder(run, output)
+    try:
+        info = json.loads((folder / BUS_FILE).read_text())
+        name, hub, secure = str(info["run"]), str(info["hub"]), bool(info["security"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise RunNotFoundError(f"{folder / BUS_FILE}: not a run's bus description ({exc})") from exc
+    if not secure:
+        return RunBus(name, hub, None)
+    path = credentials_path(folder, user)
+    try:
+        return RunBus(name, hub, load_credentials(path))
+    except OSError as exc:
+        raise RunNotFoundError(
+            f"cannot read the {user} credentials {path} ({exc.strerror}): run this as the "
+            "user who started the run"
+        ) from exc
+    except ValueError as exc:
+        raise RunNotFoundError(str(exc)) from exc

@@ -1,0 +1,181 @@
+"""The launcher's process lifecycle: stop signals, watching children start, and the run's verdict.
+
+Exit statuses of ``ddvi run`` (docs/faults.md, "Stopping a run"):
+
+    0    the mission completed: the environment's final clock at the planned end, every command
+         flown (none refused, stale or missing)
+    1    it failed: a service died, the mission ended early (a re-entry, a final clock from
+         anyone but the environment), or no report was written
+    2    bad input: the deployment, the output folder or the bus settings (one line says which)
+    3    the mission completed, but commands were refused, stale or missing (the report counts
+         them)
+    128+N  stopped by signal N (130 SIGINT, 129 SIGHUP, 143 SIGTERM); the partial report is
+         written
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from services.bus import watch_alive
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_DEGRADED = 0, 1, 2, 3
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
+LOG_TAIL = 8  # a crashed service's last log lines the launcher shows
+POLL = 0.05  # s between looks at the children while they start
+
+COMMAND_PROBLEMS = ("refused", "stale", "missing", "late")
+"""The report's command counters that make a completed mission's exit status 3."""
+
+
+def exit_for_signal(signum: int) -> int:
+    """The shell's convention: 128 + the signal's number."""
+    return 128 + int(signum)
+
+
+class StopSignals:
+    """SIGTERM, SIGHUP and SIGINT (also when inherited as ignored: ``ddvi run &`` in a script)
+    request one orderly stop; a second signal while stopping is said, not obeyed (the stop
+    writes the partial report).  ``received`` is the first signal's number, or None."""
+
+    def __init__(self, name: str = "ddvi run") -> None:
+        self.name = name
+        self.received: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def install(self) -> None:
+        """Take the stop signals (only the main thread may: elsewhere, e.g. a launcher run on
+        a worker thread, the caller keeps its own)."""
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in STOP_SIGNALS:
+            self._previous[sig] = signal.signal(sig, self._on_signal)
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        sig = signal.Signals(signum).name
+        if self.received is None:
+            self.received = signum
+            text = f"{self.name}: {sig}: stopping every service; the partial report follows\n"
+        else:
+            text = f"{self.name}: {sig} again: already stopping, the report is being written\n"
+        with contextlib.suppress(OSError):  # not print: it may interrupt a print in progress
+            os.write(2, text.encode())
+
+
+def last_lines(path: Path, n: int = LOG_TAIL, limit: int = 16384) -> list[str]:
+    """The last ``n`` non-empty lines of a log file (its last ``limit`` bytes), undecodable
+    bytes replaced; [] when the file is missing."""
+    try:
+        with path.open("rb") as f:
+            f.seek(max(f.seek(0, os.SEEK_END) - limit, 0))
+            text = f.read().decode("utf-8", "replace")
+    except OSError:
+        return []
+    return [line for line in text.splitlines() if line.strip()][-n:]
+
+
+def await_alive(
+    session: zenoh.Session,
+    run: str,
+    names: list[str],
+    timeout: float,
+    exited: Callable[[], tuple[str, int] | None],
+    stopping: Callable[[], bool],
+) -> tuple[str, Any]:
+    """Wait until every named service's liveliness token is seen, watching the children.
+
+    Returns ("alive", None); ("exited", (name, status)) as soon as ``exited()`` names a child
+    that ended; ("stopped", None) when ``stopping()``; ("timeout", missing names) after
+    ``timeout`` s."""
+    alive: set[str] = set()
+    lock = threading.Lock()
+
+    def on_change(name: str, up: bool) -> None:
+        with lock:
+            (alive.add if up else alive.discard)(name)
+
+    sub = watch_alive(session, run, "*", on_change)
+    try:
+        deadline = time.monotonic() + timeout
+        while True:
+            with lock:
+                missing = sorted(set(names) - alive)
+            if not missing:
+                return "alive", None
+            if stopping():
+                return "stopped", None
+            if (gone := exited()) is not None:
+                return "exited", gone
+            if time.monotonic() >= deadline:
+                return "timeout", missing
+            time.sleep(POLL)
+    finally:
+        sub.undeclare()
+
+
+SERVICE_BYTES = 80e6
+"""A service process's resident memory, estimated (30 deputies, 62 processes: 4.8 GB)."""
+
+
+def resources(dep: Any) -> tuple[int, float]:
+    """The processes a deployment starts and the memory they take, estimated (bytes)."""
+    processes = len(dep.services)
+    return processes, processes * SERVICE_BYTES
+
+
+def resource_problems(dep: Any) -> tuple[list[str], str | None]:
+    """Warnings, and the reason not to start at all, for a deployment on this machine: more
+    memory than is available is refused; more than half of it, or more processes than eight
+    per core, is warned of."""
+    import psutil
+
+    processes, need = resources(dep)
+    available = psutil.virtual_memory().available
+    cores = os.cpu_count() or 1
+    said = f"{processes} processes, about {need / 1e9:.1f} GB"
+    if need > available:
+        return [], (f"this deployment needs {said}; {available / 1e9:.1f} GB are available: "
+                    "run fewer deputies (or split them into several runs)")  # fmt: skip
+    warnings = []
+    if need > available / 2:
+        warnings.append(f"{said} of the {available / 1e9:.1f} GB available")
+    if processes > 8 * cores:
+        warnings.append(f"{processes} processes on {cores} cores: lock-step steps will be slow")
+    return warnings, None
+
+
+def command_problems(commands: Mapping[str, Any]) -> dict[str, int]:
+    """The outcome's counts of commands refused, stale, missing or late
+    (``services.ground.outcome``), those not zero."""
+    found = {k: int(commands.get(k, 0) or 0) for k in COMMAND_PROBLEMS}
+    return {k: v for k, v in found.items() if v}
+
+
+def verdict(summary: Mapping[str, Any]) -> tuple[int, str]:
+    """The exit status and one line for a run's summary.json (``services.ground.report``)."""
+    out = summary.get("outcome", {})
+    problems = command_problems(out.get("commands", {}))
+    said = ", ".join(f"{v} {k}" for k, v in problems.items())
+    ended_by = out.get("ended_by")
+    if not summary.get("completed", False):
+        why = f" (ended by {ended_by})" if ended_by else ""
+        orbits = summary.get("orbits", 0.0)
+        tail = f"; commands: {said}" if said else ""
+        return EXIT_FAILED, f"mission INCOMPLETE at {orbits:.2f} orbits{why}{tail}"
+    if problems:
+        return EXIT_DEGRADED, f"mission completed, but commands were {said} (exit status 3)"
+    return EXIT_OK, "mission completed"

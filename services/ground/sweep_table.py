@@ -1,0 +1,177 @@
+"""A sweep's results: its rows as a table (CSV and markdown), its plot, and what counts as
+learning in it.  ``services.ground.sweep`` runs the missions and makes the rows: one per run
+(a point of the sweep) and deputy, as dicts keyed by the names of ``columns(kind)``.
+
+Every gain error is |K - K*| / |K*| against K*, the optimal gain of the truth's linear model
+of that run (``services.model.true_lqr_gains``), with the error against the nominal model's
+LQR gain in its own column.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+UNITS = {"delay": "s", "loss": "probability", "noise": "m"}
+"""Sweep kind -> the unit of its swept value."""
+
+POINT = {"delay": ["value"], "loss": ["value"], "noise": ["noise", "mismatch"]}
+"""Sweep kind -> the columns that name a run's point of the sweep (its first column is the
+plot's x axis)."""
+
+RESULTS = [
+    "deputy",
+    "controller",
+    "completed",
+    "final_along_track_error_m",
+    "max_along_track_error_last_orbit_m",
+    "learned",
+    "learned_at_orbits",
+    "gain_error",
+    "gain_error_vs_lqr",
+]
+LINKS = ["dropped", "delayed", "late", "missing"]
+
+HEADERS = {
+    "noise": "nav noise (m)",
+    "mismatch": "mismatch",
+    "deputy": "deputy",
+    "controller": "controller",
+    "completed": "completed",
+    "final_along_track_error_m": "final along-track error (m)",
+    "max_along_track_error_last_orbit_m": "last-orbit max (m)",
+    "learned": "learned",
+    "learned_at_orbits": "at orbit",
+    "gain_error": "gain error vs true K*",
+    "gain_error_vs_lqr": "vs nominal LQR",
+    "dropped": "dropped",
+    "delayed": "delayed",
+    "late": "late",
+    "missing": "missing",
+    "note": "note",
+}
+
+NOTES = {
+    "links": "dropped, delayed: by this deputy's controller's links and the environment's "
+    "command links (all deputies); late, missing: the environment's commands, all deputies "
+    "(a learning attempt longer than run.command_deadline also makes them).",
+    "noise": "nav noise: each deputy's navigation.position_noise (m, 1 sigma per axis), "
+    "velocity_noise = {ratio:g} (m/s)/m times it; mismatch f: the truth's density_factor and "
+    "every deputy's area_factor f times the deployment's; note: why a learner flies no "
+    "learned gain (its last learning log line).",
+}
+
+
+def columns(kind: str) -> list[str]:
+    """The row keys of a sweep of ``kind``, in table order."""
+    if kind not in UNITS:
+        raise ValueError(f"sweep kind: expected one of {list(UNITS)}, got {kind!r}")
+    return POINT[kind] + RESULTS + (["note"] if kind == "noise" else LINKS)
+
+
+SUCCESS = 0.1
+"""Learning succeeded: the controller switched to learned gains within 10% of the optimal gain
+of the truth's linear model (|K - K*|/|K*| < SUCCESS); a learner can also converge to a wrong
+gain."""
+
+
+def succeeded(row: dict[str, Any]) -> bool:
+    """A row whose run completed with learned gains within ``SUCCESS`` of the true K*."""
+    err = row["gain_error"]
+    return bool(row["learned"] and row["completed"] and err is not None and err < SUCCESS)
+
+
+def largest_learning_value(rows: list[dict[str, Any]]) -> float | None:
+    """The largest value of a link sweep at which learning succeeded for every learning
+    deputy, all smaller values included (None if it failed at the first)."""
+    best = None
+    for value in sorted({r["value"] for r in rows}):
+        learners = [r for r in rows if r["value"] == value and r["controller"] != "lqr"]
+        if not learners or not all(succeeded(r) for r in learners):
+            break
+        best = value
+    return best
+
+
+def _fmt(x: Any) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, float):
+        return f"{x:.4g}"
+    return str(x).replace("|", "/")
+
+
+def markdown_table(kind: str, rows: list[dict[str, Any]], velocity_ratio: float = 0.0) -> str:
+    """The rows as a markdown table, with a note on what the columns count."""
+    cols = columns(kind)
+    head = [HEADERS.get(c, f"{kind} ({UNITS[kind]})") for c in cols]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |" for r in rows]
+    note = NOTES["noise"].format(ratio=velocity_ratio) if kind == "noise" else NOTES["links"]
+    lines += [
+        "",
+        "learned: the controller flies gains it learned (not K0, not old gains a failed "
+        "re-learning fell back to); gain error: |K - K*| / |K*| of the gain flown at the end "
+        "(LQR's and learned ones) against K*, the optimal gain of the truth's linear model of "
+        "that run (its density, facet area and factors); vs nominal LQR: against the nominal "
+        "model's LQR gain; along-track error: |y - y_ref|. " + note,
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_table(
+    kind: str, rows: list[dict[str, Any]], folder: Path, velocity_ratio: float = 0.0
+) -> None:
+    """Write sweep.csv and sweep.md of the rows so far."""
+    with open(folder / "sweep.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns(kind), extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    (folder / "sweep.md").write_text(markdown_table(kind, rows, velocity_ratio))
+
+
+def _label(kind: str, row: dict[str, Any]) -> str:
+    text = f"{row['deputy']} ({row['controller']})"
+    return f"{text}, mismatch {row['mismatch']:g}" if kind == "noise" else text
+
+
+def plot(kind: str, rows: list[dict[str, Any]], path: Path) -> None:
+    """Write sweep.png: final along-track error (left) and gain error against the true K*
+    (right, a cross at 1 where a learner did not learn; an error of 0, LQR's in a nominal run,
+    has no point on the log scale) against the swept value; one line per deputy (and mismatch
+    factor), the noise axis symmetric-log (it starts at 0)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = POINT[kind][0]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    for i, label in enumerate(dict.fromkeys(_label(kind, r) for r in rows)):
+        mine, color = [r for r in rows if _label(kind, r) == label], f"C{i % 10}"
+        final = [(r[x], r["final_along_track_error_m"]) for r in mine if r["completed"]]
+        if final:
+            ax1.semilogy(*zip(*final, strict=True), "o-", color=color, label=label)
+        scored = [(r[x], r["gain_error"]) for r in mine if r["gain_error"] is not None]
+        if scored:
+            ax2.semilogy(*zip(*scored, strict=True), "o-", color=color, label=label)
+        failed = [r[x] for r in mine if r["controller"] != "lqr" and not r["learned"]]
+        if failed:
+            ax2.plot(
+                failed, [1.0] * len(failed), "x", ms=9, color=color, label=f"{label}: not learned"
+            )
+    xlabel = "navigation noise (m)" if kind == "noise" else f"link {kind} ({UNITS[kind]})"
+    ax1.set(xlabel=xlabel, ylabel="final |y - y_ref| (m)", title="along-track error at the end")
+    ax2.set(xlabel=xlabel, ylabel="|K - K*| / |K*|", title="gain against the true optimum K*")
+    positive = sorted({r[x] for r in rows if r[x] > 0})
+    for ax in (ax1, ax2):
+        if kind == "noise" and positive:
+            ax.set_xscale("symlog", linthresh=positive[0])
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,130 @@
+"""The model-fit learner in the controller (learning.method = "model-fit"), flown in one
+process on short missions: it learns from orbit 3 on by orbit 6 or on a retry, its gain is
+close to the optimal gain of the truth's own linear model, and nothing diverges; the paper's
+value iteration stays the default."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.config import DeploymentError, deployment_from_table, load_deployment, read_table
+from services.flight.control import Controller
+from services.flight.inprocess import run_in_process
+from services.flight.trim import StationTrim
+from services.model import orbit_period, true_lqr_gains
+
+FIT = {
+    "method": "model-fit",
+    "data_from_orbits": 3.0,
+    "learn_at_orbits": 6.0,
+    "retry_orbits": 0.5,
+    "density_exostate": True,
+    "K0": [-0.023, 0.0, 0.0, -10.0],
+}
+
+
+def _fit_only(base: str, orbits: float, **learning) -> object:
+    """``base`` with its LQR deputy and a model-fit deputy in place of its DDVI one."""
+    table = read_table(base)
+    table["run"]["orbits"] = orbits
+    ddvi = table["deputy"][1]
+    ddvi["name"], ddvi["learning"] = "fit", {**FIT, **learning}
+    return deployment_from_table(table, base)
+
+
+def _gain_error(dep, ctrl: Controller) -> float:
+    K_true, _ = true_lqr_gains(dep, ctrl.deputy)
+    return float(np.linalg.norm(ctrl.K - K_true) / np.linalg.norm(K_true))
+
+
+@pytest.mark.integration  # two 7-orbit missions, a few seconds each
+@pytest.mark.parametrize("base", ["rendezvous", "mismatch-2x"])
+def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
+    dep = _fit_only(base, 7.0)
+    out = run_in_process(dep, noise_seed=1)
+    ctrl = out["fit"]["controller"]
+    period = orbit_period(dep)
+    assert ctrl.phase == "learned" and ctrl.source == "model-fit"
+    assert 6.0 <= ctrl.learned_at[0] / period <= 6.1
+    assert _gain_error(dep, ctrl) <= 0.02
+    assert ctrl.L.shape == (1, 6)  # the density ratio is in the learner's exostate
+    assert "model fit (condition" in out["fit"]["log"][-1]
+    # no divergence: after learning the deputy closes on its slot (33 km behind at orbit 6)
+    t, y = out["fit"]["t"], out["fit"]["x"][:, 1]
+    assert np.all(np.isfinite(y)) and abs(y[-1]) < abs(y[t >= ctrl.learned_at[0]][0])
+
+
+@pytest.mark.integration  # a 7-orbit mission
+def test_an_uncertain_fit_retries_on_a_growing_window():
+    dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6)
+    out = run_in_process(dep, noise_seed=1)
+    ctrl = out["fit"]["controller"]
+    assert ctrl.phase == "exploring" and ctrl.learn_attempts == 2  # at orbits 6 and 6.5
+    assert not ctrl.learned_at
+    assert "predicted relative error" in out["fit"]["log"][0]
+
+
+@pytest.mark.integration  # a 7-orbit mission
+def test_the_deadline_tolerance_applies_from_its_orbit():
+    dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6, fit_deadline_orbits=6.5)
+    ctrl = run_in_process(dep, noise_seed=1)["fit"]["controller"]
+    assert ctrl.learn_attempts == 2 and ctrl.phase == "learned"  # refused at 6, taken at 6.5
+    assert ctrl.learned_at[0] / orbit_period(dep) == pytest.approx(6.5, abs=0.05)
+    assert _gain_error(dep, ctrl) <= 0.02
+
+
+def test_station_trim_moves_the_constant_only_on_station():
+    trim = StationTrim(period=100.0, radius=50.0, gain=0.5, start=0.0)
+    for t in range(0, 100, 10):
+        trim.add(float(t), 60.0 if t == 50 else 10.0)  # one sample off station
+    assert trim.due(100.0)
+    delta, log = trim.update(100.0, K_y=4e-4)
+    assert delta == 0.0 and "not on station" in log
+    for t in range(100, 200, 10):
+        trim.add(float(t), 10.0)
+    delta, log = trim.update(200.0, K_y=4e-4)
+    assert delta == pytest.approx(-0.5 * 4e-4 * 10.0) and trim.total == delta
+    assert not trim.due(250.0) and "mean along-track error +10.00 m" in log
+    with pytest.raises(ValueError, match="gain in"):
+        StationTrim(period=100.0, radius=50.0, gain=1.5, start=0.0)
+
+
+def test_value_iteration_stays_the_default():
+    dep = load_deployment("rendezvous")
+    assert dep.deputy_named("ddvi").learning.method == "value-iteration"
+    ctrl = Controller(dep, "ddvi")
+    assert ctrl.collect_from == 0.0 and ctrl.L.shape == (1, 5)
+    assert type(ctrl.collector).__name__ == "IntervalCollector"
+
+
+def test_realistic_nav_flies_three_controllers_side_by_side():
+    dep = load_deployment("realistic-nav")
+    methods = {d.name: (d.controller, d.learning.method) for d in dep.deputy}
+    assert methods == {
+        "lqr": ("lqr", "value-iteration"),
+        "ddvi": ("ddvi", "value-iteration"),
+        "fit": ("ddvi", "model-fit"),
+    }
+    assert all(d.navigation.position_noise == 1.0 for d in dep.deputy)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("method", "magic", "learning.method: expected 'value-iteration' or 'model-fit'"),
+        ("data_from_orbits", 6.0, "data_from_orbits: must lie in"),
+        ("fit_stride", 15.0, "fit_stride: must be a whole multiple"),
+        ("fit_smoothing", 900.0, "fit_smoothing: must lie in"),
+        ("refresh_orbits", -1.0, "refresh_orbits: must be >= 0"),
+        ("fit_tolerance", 0.0, "fit_tolerance: must be positive"),
+        ("trim_orbits", -1.0, "trim_orbits: must be >= 0"),
+        ("station_radius", 0.0, "station_radius: must be positive"),
+        ("trim_gain", 2.0, "trim_gain: must lie in"),
+    ],
+)
+def test_bad_learner_keys_name_the_key(key, value, message):
+    table = read_table("rendezvous")
+    table["deputy"][1]["learning"] = {**FIT, key: value}
+    with pytest.raises(DeploymentError, match=message):
+        deployment_from_table(table, "rendezvous")

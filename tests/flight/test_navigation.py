@@ -1,0 +1,67 @@
+"""The navigation service's filter in a short mission flown in one process (the service's own
+code, its messages encoded and decoded as on the wire), and its deployment keys."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+
+import numpy as np
+import pytest
+
+from benchmarks.navigation import fly, rms, with_noise
+from services.config import Deployment, DeploymentError, deployment_from_table
+
+SHORT = """
+[run]
+orbits = 1.0
+[[deputy]]
+name = "lqr"
+controller = "lqr"
+"""
+
+
+def short(**navigation: object) -> Deployment:
+    table = tomllib.loads(SHORT)
+    table["deputy"][0]["navigation"] = navigation
+    return deployment_from_table(table)
+
+
+def test_with_1_m_noise_the_published_estimate_is_closer_to_truth_than_the_measurement() -> None:
+    rec = fly(with_noise(short(), 1.0))["lqr"]
+    raw = rms(rec["measured"] - rec["truth"])
+    est = rms(rec["estimate"] - rec["truth"])
+    assert raw[0] == pytest.approx(np.sqrt(3), rel=0.15)  # 1 m per axis was measured
+    assert est[0] < 0.3 * raw[0] and est[1] < 0.7 * raw[1]
+    # the published covariance is the error's: the position RMS within 2x of its prediction
+    predicted = np.sqrt(np.trace(rec["cov"][-1][:3, :3]))
+    assert 0.5 * predicted < est[0] < 2 * predicted
+    assert np.allclose(rec["cov"][-1], rec["cov"][-1].T)
+
+
+def test_without_a_filter_the_measurement_is_published_with_its_covariance() -> None:
+    rec = fly(with_noise(short(filter="none"), 1.0))["lqr"]
+    assert np.array_equal(rec["estimate"], rec["measured"])
+    assert np.array_equal(rec["cov"][0], np.diag([1.0] * 3 + [1e-6] * 3))
+
+
+def test_without_noise_the_filter_publishes_the_truth_exactly_with_its_bias() -> None:
+    dep = short(position_bias=[1.0, -2.0, 0.5])
+    rec = fly(dataclasses.replace(dep, run=dataclasses.replace(dep.run, orbits=0.2)))["lqr"]
+    assert np.array_equal(rec["estimate"], rec["truth"] + np.array([1.0, -2.0, 0.5, 0, 0, 0]))
+    assert not rec["cov"].any()
+
+
+@pytest.mark.parametrize(
+    ("navigation", "text"),
+    [
+        ({"filter": "kalmann"}, "deputy[0].navigation.filter: 'kalmann' is not one of"),
+        ({"filtr": "none"}, "did you mean 'filter'"),
+        ({"acceleration_noise": 0.0}, "deputy[0].navigation.acceleration_noise: must be a"),
+        ({"acceleration_noise": -1e-5}, "deputy[0].navigation.acceleration_noise: must be a"),
+    ],
+)
+def test_a_bad_filter_setting_is_refused_in_one_line(navigation: dict, text: str) -> None:
+    with pytest.raises(DeploymentError) as info:
+        short(**navigation)
+    assert text in str(info.value) and "\n" not in str(info.value)
