@@ -129,6 +129,7 @@ DRAG_X0 = [176.4, -29139.8, 0.0, -0.4165]
 DRAG_V0 = [1.0, math.cos(U0), math.sin(U0), math.cos(2 * U0), math.sin(2 * U0)]
 
 
+@pytest.mark.integration  # a whole learner run on the mission's data
 def test_drag_rendezvous_learns_K() -> None:
     prob = models.rendezvous_problem()
     col = _collect(
@@ -353,6 +354,7 @@ def test_collector_gap_after_closed_interval_discards_nothing() -> None:
     assert col.discarded == 0 and col.intervals == 1
 
 
+@pytest.mark.integration  # a whole learner run
 def test_learner_without_exosystem() -> None:
     """Plain optimal stabilisation (q = 0) on a damped oscillator, against the ARE."""
     A = np.array([[0.0, 1.0], [-1.0, -0.5]])
@@ -439,6 +441,7 @@ def _learn_far(prob, data, translation):
     )
 
 
+@pytest.mark.integration  # a whole learner run on the mission's data
 def test_translation_is_exact_on_clean_data() -> None:
     prob, data = _far_data(0.0)
     K_star = solve_lqr(prob.A, prob.B, prob.Q, prob.R).K
@@ -448,6 +451,7 @@ def test_translation_is_exact_on_clean_data() -> None:
     assert res.rank == res.rank_needed == 34
 
 
+@pytest.mark.integration  # a whole learner run on the mission's data
 def test_translation_tolerates_unmodelled_acceleration_far_out() -> None:
     """1e-9 m/s^2 unmodelled, 33 km out: about the origin the iteration does not converge;
     about the data's mean along-track position it learns K within 1%."""

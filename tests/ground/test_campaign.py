@@ -158,6 +158,7 @@ def test_the_table_resumes_only_its_own_campaign(tmp_path: Path) -> None:
     assert read_rows(path, "timing") == [{"run": 1, "wall_s": 0.5, "worker": "w"}]
 
 
+@pytest.mark.integration  # draws every figure of a campaign report
 def test_the_report_counts_successes_and_lists_the_worst_runs(tmp_path: Path) -> None:
     s = spec()
     rows = [_row(s, i, float(i)) for i in range(30)] + [_row(s, 30, None, completed=False)]

@@ -144,6 +144,7 @@ def test_in_process_is_refused_for_link_sweeps(capsys: pytest.CaptureFixture) ->
     assert "--in-process" in capsys.readouterr().err
 
 
+@pytest.mark.integration  # flies four short missions
 def test_short_noise_and_mismatch_sweep_in_process(tmp_path: Path) -> None:
     """Two orbits of the default mission at 0 and 1 m noise, nominal and 2x: the LQR rows are
     scored against the truth's K* (0 nominal, 0.68 at 2x: the nominal gain is that far from

@@ -337,12 +337,14 @@ def _messages(draw: st.DrawFn) -> bytes:
     return msgpack.packb(msg)
 
 
+@pytest.mark.integration  # hundreds of generated payloads
 @settings(max_examples=200, deadline=None)
 @given(st.dictionaries(st.text(max_size=8), _values, max_size=8))
 def test_decode_arbitrary_maps(value: dict[str, Any]) -> None:
     _decode_is_total(msgpack.packb(value))
 
 
+@pytest.mark.integration  # hundreds of generated payloads
 @settings(max_examples=300, deadline=None)
 @given(_messages())
 def test_decode_perturbed_messages(payload: bytes) -> None:
@@ -414,6 +416,7 @@ def _assert_decode_agrees(payload: bytes, expected: Any) -> None:
         assert isinstance(reference, Message) and _same_message(got, reference)
 
 
+@pytest.mark.integration  # hundreds of generated payloads
 @settings(max_examples=400, deadline=None)
 @given(_messages(), st.sampled_from([None, "nav", ("truth", "exo")]))
 def test_compiled_decode_agrees_with_field_kinds(payload: bytes, expected: Any) -> None:
@@ -451,6 +454,7 @@ def test_one_pass_decode_agrees_with_field_kinds(expected: str, msg: dict[str, A
     _assert_decode_agrees(payload, expected)
 
 
+@pytest.mark.integration  # hundreds of generated payloads
 @settings(max_examples=300, deadline=None)
 @given(_messages())
 def test_compiled_encode_agrees_with_field_kinds(payload: bytes) -> None:
