@@ -98,6 +98,10 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         presence.undeclare()
 
 
+STOP_POLL = 0.25
+"""Wall seconds the command wait blocks before it looks at a stop request again."""
+
+
 class EnvironmentService:
     """Propagates the truth one flight-software step at a time, with each deputy's command in
     force, and publishes truth, exostate and clock at every sample.
@@ -241,7 +245,9 @@ class EnvironmentService:
             waits += [u for sc in deputies if (u := self.returning(sc)) is not None]
             try:
                 if wait and waits:
-                    timeout = max(min(waits) - time.monotonic(), 0.0)
+                    # in slices, so a stop request (the launcher gone, and with it the
+                    # router that would have said the controllers left) ends the wait
+                    timeout = min(max(min(waits) - time.monotonic(), 0.0), STOP_POLL)
                     kind, msg = self.inbox.get(timeout=timeout)
                 else:
                     kind, msg = self.inbox.get_nowait()

@@ -116,14 +116,31 @@ class ServiceContext:
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
-def stop_with_launcher() -> None:
+ORPHAN_GRACE = {"monitor": 60.0}
+"""Wall seconds a service whose launcher died has to stop by itself before it is ended (the
+monitor writes the run's report first); any other service: ``ORPHAN_GRACE_DEFAULT``."""
+ORPHAN_GRACE_DEFAULT = 10.0
+
+
+def stop_with_launcher(name: str) -> None:
     """Linux: have the kernel send this process SIGTERM (a stop request) when the launcher
     that started it dies, even by SIGKILL (``prctl(PR_SET_PDEATHSIG)``); a launcher already
     gone stops it at once.  The launcher names itself in ``DDVI_LAUNCHER_PID``; without it
-    (a service started by hand) nothing is done."""
+    (a service started by hand) nothing is done.
+
+    A stop request is only seen between Python steps, and the launcher's death also takes the
+    run's router: a service blocked in its session (opening, or closing one whose router is
+    gone) would never return to see it.  A watchdog thread therefore ends the process once the
+    launcher has been gone for the service's grace (``ORPHAN_GRACE``)."""
     parent = os.environ.get("DDVI_LAUNCHER_PID", "")
     if not parent.isdigit() or not sys.platform.startswith("linux"):
         return
+    threading.Thread(
+        target=_end_when_orphaned,
+        args=(int(parent), ORPHAN_GRACE.get(name, ORPHAN_GRACE_DEFAULT)),
+        name="orphan-watchdog",
+        daemon=True,
+    ).start()
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
@@ -134,6 +151,15 @@ def stop_with_launcher() -> None:
         return
     if os.getppid() != int(parent):  # the launcher died before the prctl
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _end_when_orphaned(launcher: int, grace: float) -> None:
+    while os.getppid() == launcher:
+        time.sleep(0.5)
+    time.sleep(grace)
+    log.error("the launcher is gone and this service did not stop within %g s: ending it", grace)
+    logging.shutdown()
+    os._exit(128 + int(signal.SIGTERM))
 
 
 def mission_window(dep: Deployment) -> tuple[float, float]:
@@ -191,7 +217,7 @@ def run_service(
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
-    stop_with_launcher()
+    stop_with_launcher(args.name)
     try:
         creds = load_credentials(args.credentials) if args.credentials else None
     except (OSError, ValueError) as exc:
