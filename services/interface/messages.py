@@ -160,8 +160,9 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
             ),
             "L": Array((None, None), unit="1", doc="exosystem feedforward, u = -K x + L v"),
             "source": Str(
-                ("initial", "lqr", "ddvi", "fallback"),
-                doc="where the gains come from: K0, the nominal LQR, learned, or restored",
+                ("initial", "lqr", "ddvi", "model-fit", "fallback"),
+                doc="where the gains come from: K0, the nominal LQR, learned by value "
+                "iteration or by the model fit, or restored",
             ),
             "iteration": Int(unit="count", doc="value-iteration steps that produced them"),
             "converged": Bool(doc="value iteration converged (true for LQR gains)"),

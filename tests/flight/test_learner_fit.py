@@ -12,6 +12,7 @@ from services.config import DeploymentError, deployment_from_table, load_deploym
 from services.flight.control import Controller
 from services.flight.inprocess import run_in_process
 from services.flight.trim import StationTrim
+from services.interface import decode, encode
 from services.model import orbit_period, true_lqr_gains
 
 FIT = {
@@ -50,6 +51,10 @@ def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
     assert _gain_error(dep, ctrl) <= 0.02
     assert ctrl.L.shape == (1, 6)  # the density ratio is in the learner's exostate
     assert "model fit (condition" in out["fit"]["log"][-1]
+    # the learned gains travel on the bus as the controller process publishes them
+    body = {"sc": "fit", "K": ctrl.K, "L": ctrl.L, "source": ctrl.source,
+            "iteration": ctrl.iteration, "converged": ctrl.converged}  # fmt: skip
+    assert decode(encode("gains", body, seq=0, t=1.0, src="ctrl-fit")).body["source"] == "model-fit"
     # no divergence: after learning the deputy closes on its slot (33 km behind at orbit 6)
     t, y = out["fit"]["t"], out["fit"]["x"][:, 1]
     assert np.all(np.isfinite(y)) and abs(y[-1]) < abs(y[t >= ctrl.learned_at[0]][0])
