@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from typing import Any
 
-from ddvi_core.learning_config import LearningConfig
+from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
 from services.bus import LinkRule, LinkSpec, rule_latency
 
@@ -132,14 +132,10 @@ other key takes LearningConfig's default (no exploration_frequencies: the contro
 from 0.3 to 30 times the orbit rate)."""
 
 DEPUTY_LEARNING_KEYS = (
-    "learn_at_orbits",
-    "retry_orbits",
     "interval",
     "exploration_amplitude",
     "exploration_frequencies",
     "K0",
-    "window_orbits",
-    "along_track_reference",
     "step",
     "step_size",
     "bounds",
@@ -147,24 +143,7 @@ DEPUTY_LEARNING_KEYS = (
     "tol",
     "max_iterations",
     "seed",
-    "relearn",
-    "relearn_settle_orbits",
-    "relearn_window_orbits",
-    "relearn_max_attempts",
-    "detector_bound",
-    "detector_window_orbits",
-    "method",
-    "data_from_orbits",
-    "fit_stride",
-    "fit_smoothing",
-    "fit_tolerance",
-    "fit_deadline_orbits",
-    "fit_deadline_tolerance",
-    "refresh_orbits",
-    "trim_orbits",
-    "station_radius",
-    "trim_gain",
-    "density_exostate",
+    *FLIGHT_SCHEDULE_KEYS,
 )
 """The keys a deputy's learning table may give (the sample and command periods, the state and
 exostate and the iteration's units come from the rest of the deployment)."""
