@@ -45,6 +45,7 @@ ECHO_READY = "ready"
 BODY = {
     "sc": "deputy1",
     "x_hill": np.array([12.5, -33000.25, 0.5, 0.0031, -0.0079, 0.0004]),
+    "z_hill": np.array([13.1, -33000.9, 0.2, 0.0042, -0.0065, 0.0011]),
     "cov": np.diag([0.02, 0.02, 0.02, 4e-8, 4e-8, 4e-8]),
     "altitude": 300e3,
     "valid": True,
@@ -52,7 +53,8 @@ BODY = {
 
 
 def _plain_body() -> dict[str, Any]:
-    return {**BODY, "x_hill": BODY["x_hill"].tolist(), "cov": BODY["cov"].tolist()}
+    plain = {k: BODY[k].tolist() for k in ("x_hill", "z_hill", "cov")}
+    return {**BODY, **plain}
 
 
 class _Side:

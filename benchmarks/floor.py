@@ -89,7 +89,8 @@ def _body(kind: str, sc: str, t: float, vector: Callable[[list[float]], Any]) ->
         return {"v": vector([1.0, 0.5, 0.5, 0.5, 0.5]), "phase": 0.0}  # exostate's (5,)
     if kind == "nav":
         cov = vector([[0.0] * 6] * 6)
-        return {"sc": sc, "x_hill": vector([1.0] * 6), "cov": cov, "altitude": 3e5, "valid": True}
+        return {"sc": sc, "x_hill": vector([1.0] * 6), "z_hill": vector([1.0] * 6), "cov": cov,
+                "altitude": 3e5, "valid": True}  # fmt: skip
     if kind == "cmd":
         return {"sc": sc, "sigma": vector([0.0, 0.0, 0.1]), "for_t": t}
     return {"step": 0, "dt": 10.0, "fsw": True, "mode": "lockstep", "final": False}  # clock

@@ -88,14 +88,14 @@ def fly(dep: Deployment) -> dict[str, dict[str, np.ndarray]]:
             if len(buses[i].published) == before:
                 continue  # not on this deputy's navigation grid
             msg = buses[i].published[-1][1]
-            outcome = ctrls[i].on_sample(t, msg.body["x_hill"][list(IN_PLANE)], v,
-                                         msg.body["altitude"])  # fmt: skip
+            x, z = (msg.body[k][list(IN_PLANE)] for k in ("x_hill", "z_hill"))
+            outcome = ctrls[i].on_sample(t, x, v, msg.body["altitude"], z)
             if outcome.fsw:
                 sigma[i] = [0.0, 0.0, ctrls[i].u]
             rec = out[d.name]
             rec["t"].append(t)
             rec["truth"].append(navigation_state(dep, d, X[0], X[i + 1]))
-            rec["measured"].append(navs[i].measured)
+            rec["measured"].append(msg.body["z_hill"])  # the measurement as published
             rec["estimate"].append(msg.body["x_hill"])
             rec["cov"].append(msg.body["cov"])
 

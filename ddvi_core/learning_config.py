@@ -66,6 +66,9 @@ class LearningConfig:
     method: 'value-iteration' (the paper's Algorithm 2, :mod:`ddvi_core.learning`) or
     'model-fit' (the first-order interval fit, :mod:`ddvi_core.model_fit`);
     data_from_orbits: samples before this are not the learner's (the initial transient);
+    learn_from: 'estimate' (the navigation filter's output, what the control law flies on)
+    or 'measurement' (the navigation message's measurement before the filter): what the
+    learner collects;
     fit_stride: model-fit: one interval of ``interval`` seconds starts every this many seconds;
     fit_smoothing: model-fit: the interval relation averaged over shifts of up to this many
     seconds (0: end points as sampled), which averages the end points' noise;
@@ -118,6 +121,7 @@ class LearningConfig:
     detector_window_orbits: float = 1.0
     method: str = "value-iteration"
     data_from_orbits: float = 0.0
+    learn_from: str = "estimate"
     fit_stride: float = 10.0
     fit_smoothing: float = 0.0
     fit_tolerance: float = 0.01
@@ -219,6 +223,7 @@ FLIGHT_SCHEDULE_KEYS = (
     "detector_window_orbits",
     "method",
     "data_from_orbits",
+    "learn_from",
     "fit_stride",
     "fit_smoothing",
     "fit_tolerance",

@@ -131,6 +131,7 @@ def _check_deputy_navigation(w: str, d: Deputy, dep: Deployment) -> None:
 
 
 LEARNING_METHODS = ("value-iteration", "model-fit")
+LEARNING_SOURCES = ("estimate", "measurement")
 
 
 def _check_deputy_learning(w: str, d: Deputy) -> None:
@@ -151,6 +152,7 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
     if lrn.relearn_max_attempts < 1:
         raise DeploymentError(f"{where}.relearn_max_attempts: must be >= 1")
     _one_of(f"{where}.method", lrn.method, LEARNING_METHODS)
+    _one_of(f"{where}.learn_from", lrn.learn_from, LEARNING_SOURCES)
     if not 0 <= lrn.data_from_orbits < lrn.learn_at_orbits:
         raise DeploymentError(f"{where}.data_from_orbits: must lie in [0, learn_at_orbits)")
     _multiple(f"{where}.fit_stride", lrn.fit_stride, d.navigation.period, f"{w}.navigation.period")

@@ -204,14 +204,17 @@ class Controller:
         self.steps.append((t, self.u_applied))
         return self.u
 
-    def on_sample(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> SampleOutcome:
+    def on_sample(
+        self, t: float, x: np.ndarray, v: np.ndarray, altitude: float, z: np.ndarray | None = None
+    ) -> SampleOutcome:
         """One navigation sample, in time order, when it arrives undelayed: on a
-        flight-software step, ``tick`` with it, then ``collect`` it.  The in-process baseline
-        runs exactly this; the service runs the same two steps, ordered by time."""
+        flight-software step, ``tick`` with it, then ``collect`` it (estimate x, measurement
+        z).  The in-process baseline runs exactly this; the service runs the same two steps,
+        ordered by time."""
         outcome = SampleOutcome(fsw=on_grid(t, self.fsw))
         if outcome.fsw:
             outcome.learn_log = self.tick(t, x, v, altitude)
-        outcome.rejected = self.collect(t, x, v, altitude)
+        outcome.rejected = self.collect(t, x, v, altitude, z)
         return outcome
 
     @property
@@ -293,18 +296,27 @@ class Controller:
         issued = math.floor((t_k - self.actuation_delay) / self.fsw + 1e-9) * self.fsw
         return self.input_at(issued) if issued > -1e-6 else 0.0
 
-    def collect(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> str | None:
+    def collect(
+        self, t: float, x: np.ndarray, v: np.ndarray, altitude: float, z: np.ndarray | None = None
+    ) -> str | None:
         """While exploring, feed the collector the sample with the input acting on the plant
         from t on (``input_acting``); returns why the collector refused it, if it did.  Once
-        learned, feed the change detector (if armed) instead."""
-        on_station = abs(float(x[1]) - self.deputy.y_ref) <= self.deputy.learning.station_radius
+        learned, feed the change detector (if armed) instead.  x (4,) is the navigation
+        estimate, z (4,) the measurement it came from (None: x): with ``learning.learn_from =
+        "measurement"`` the learner, the refresh and the detector get z, the trim x."""
+        error = float(x[1]) - self.deputy.y_ref
+        if self.trim is not None and self.phase == "learned":
+            self.trim.add(t, error)
+        if self.deputy.learning.learn_from == "measurement" and z is not None:
+            # the filter's estimate lags what its model leaves out (the commanded drag), a
+            # bias the fit would learn; the measurement's noise is white, which it averages
+            x = z
+        on_station = abs(error) <= self.deputy.learning.station_radius
         if self.refresh is not None and self.phase == "learned" and on_station:
             try:  # the gaps off station split the data (no interval spans one)
                 self.refresh.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
             except LearningError as exc:
                 return f"sample at t = {t} rejected: {exc}"
-        if self.trim is not None and self.phase == "learned":
-            self.trim.add(t, float(x[1]) - self.deputy.y_ref)
         if self.phase == "learned" and self.detector is not None:
             self.detector.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
             return None
@@ -463,10 +475,18 @@ class Controller:
         of it), and fly the feedforward L = U + K X of the regulator equations on it: the drag
         offset the exploration saw far behind the slot is not the one at the slot.  Returns
         the log line; a refit that fails keeps the L in force."""
-        lrn, model = self.deputy.learning, self.result.model
-        C, E, F = self.exosystem
+        lrn, C, E, F = self.deputy.learning, *self.exosystem
         self.next_refresh = t + lrn.refresh_orbits * orbit_period(self.dep)
         data = self.refresh.data().since(self.learning_window(t))
+        if data.samples:  # the newest stay on station only: a fly-through is not one
+            data = data.since(float(data.t[data.segment == data.segment[-1]][0]))
+        span = float(data.t[-1] - data.t[0]) if data.samples else 0.0
+        if span < lrn.refresh_orbits * orbit_period(self.dep) - 1e-6:
+            return (
+                f"feedforward not refitted at t = {t:.0f} s: on station for {span:.0f} s, "
+                f"less than refresh_orbits; L kept"
+            )
+        model = self.result.model
         try:
             D = fit_exosystem_input(data, model.A, model.B, length=lrn.interval,
                                     stride=lrn.fit_stride, smoothing=lrn.fit_smoothing,
@@ -475,7 +495,9 @@ class Controller:
         except (LearningError, InfeasibleError) as exc:
             return f"feedforward refit at t = {t:.0f} s failed, L kept: {exc}"
         self.L = feedforward_gain(self.K, X, U)
-        self.L[0, 0] += self.trim.total if self.trim is not None else 0.0
+        if self.trim is not None:
+            # the refit saw the trim in the inputs it was fitted on: it replaces it, not adds
+            self.trim.total = 0.0
         return (
             f"feedforward refitted at t = {t:.0f} s from {data.samples} samples on the learned "
             f"gains: D[:, 0] = {np.round(D[:, 0], 12).tolist()}, L = {self.L.ravel().tolist()}"

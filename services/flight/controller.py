@@ -49,8 +49,9 @@ undeclaration can overtake the samples the service put just before it left."""
 _SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
 _PRESENCE = "presence"  # inbox tag: the navigation service came or went
 
-Sample = tuple[float, np.ndarray, np.ndarray, float]
-"""A navigation sample paired with its exostate: (t (s), x (4,), v (q,), altitude (m))."""
+Sample = tuple[float, np.ndarray, np.ndarray, float, np.ndarray]
+"""A navigation sample paired with its exostate: (t (s), the estimate x (4,), v (q,),
+altitude (m), the measurement z (4,))."""
 
 
 def main(ctx: ServiceContext) -> int:
@@ -100,7 +101,7 @@ class ControllerService:
             ctx.bus.latency(f"nav-{sc}", nav_state_topic(sc)),
             ctx.bus.latency("environment", EXOSTATE),
         )
-        self.pairs = SamplePairs(("nav", "exo"))  # nav: (x, altitude); exo: v
+        self.pairs = SamplePairs(("nav", "exo"))  # nav: (x, altitude, z); exo: v
         self.ready: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}  # not yet collected
         self.last: Sample | None = None  # newest collected sample
         # collected samples a step may still fly on (up to its delay behind it)
@@ -209,15 +210,15 @@ class ControllerService:
         if msg.schema == "exo":
             pair = self.pairs.add(msg.t, "exo", msg.body["v"])
         else:
-            x = msg.body["x_hill"][list(IN_PLANE)]
-            pair = self.pairs.add(msg.t, "nav", (x, msg.body["altitude"]))
+            x, z = (msg.body[k][list(IN_PLANE)] for k in ("x_hill", "z_hill"))
+            pair = self.pairs.add(msg.t, "nav", (x, msg.body["altitude"], z))
         last_t = None if self.last is None else self.last[0]
         if pair is not None:
-            (x, altitude), v = pair["nav"], pair["exo"]
+            (x, altitude, z), v = pair["nav"], pair["exo"]
             if last_t is not None and msg.t <= last_t:
                 self.counters["samples_rejected"] += 1  # stale or replayed
             else:
-                self.ready[msg.t] = (x, v, altitude)
+                self.ready[msg.t] = (x, v, altitude, z)
         if last_t is not None:
             # exostates and samples that nothing will pair any more (their partner was lost
             # on a link, or they repeat collected ones); a lone sample is counted as rejected
@@ -262,7 +263,7 @@ class ControllerService:
         if newest is None:  # nothing measured yet (a delayed start): hold the zero command
             learn_log = None
         else:
-            _, x, v, altitude = newest
+            _, x, v, altitude, _ = newest
             learn_log = ctrl.tick(T, x, v, altitude)
         if learn_log is not None:
             counters["learn_attempts"] = ctrl.learn_attempts
@@ -285,12 +286,12 @@ class ControllerService:
             self.ctx.publish_stats(T, counters)
 
     def collect(self, t: float) -> None:
-        x, v, altitude = self.ready.pop(t)
-        rejected = self.ctrl.collect(t, x, v, altitude)
+        x, v, altitude, z = self.ready.pop(t)
+        rejected = self.ctrl.collect(t, x, v, altitude, z)
         if rejected is not None:
             self.counters["samples_rejected"] += 1
             self.ctx.log("warning", rejected, t)
-        self.last = (t, x, v, altitude)
+        self.last = (t, x, v, altitude, z)
         self.recent.append(self.last)
 
     def advance(self) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 from ddvi_core.constants import R_EARTH
 from services.config import Deployment
 from services.flight.control import Controller
-from services.flight.navigation import navigation_filter
+from services.flight.navigation import navigation_filter, noise_generator
 from services.model import (
     IN_PLANE,
     duration,
@@ -23,11 +23,10 @@ from services.model import (
 )
 
 
-def run_in_process(
-    dep: Deployment, noise_seed: int = 0, timing: dict[str, float] | None = None
-) -> dict[str, dict]:
+def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> dict[str, dict]:
     """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
-    the controller object (final gains, phase) and its learning log lines.
+    the controller object (final gains, phase) and its learning log lines.  Each deputy's
+    navigation noise is drawn as its navigation service draws it (``noise_generator``).
 
     ``timing``, if given, gets the wall seconds of each service's share: ``environment``
     (truth, exostate), ``nav-<deputy>`` (states, bias, noise, filter), ``ctrl-<deputy>``
@@ -40,7 +39,7 @@ def run_in_process(
     fsw, t_end = run.fsw_period, duration(dep)
     truth = open_truth(dep)
     ctrls = [Controller(dep, d.name) for d in dep.deputy]
-    rng = np.random.default_rng(noise_seed)
+    rngs = [noise_generator(dep, d) for d in dep.deputy]
     out = {d.name: {"t": [], "x": [], "u": [], "log": []} for d in dep.deputy}
     sigma = np.zeros((len(ctrls), 3))
     navs = [d.navigation for d in dep.deputy]
@@ -59,12 +58,14 @@ def run_in_process(
             x6 = navigation_state(dep, d, X[0], X[i + 1])
             noisy = x6 + biases[i]
             if noises[i].any():  # as the navigation service: no draw without noise
-                noisy = noisy + rng.normal(0, 1, 6) * noises[i]
+                noisy = noisy + rngs[i].normal(0, 1, 6) * noises[i]
+            estimate = noisy
             if filters[i] is not None:
-                noisy, _ = filters[i].update(t, noisy)
+                estimate, _ = filters[i].update(t, noisy)
             altitude = float(np.linalg.norm(X[i + 1, :3])) - R_EARTH
             t1 = clock()
-            outcome = c.on_sample(t, noisy[list(IN_PLANE)], v, altitude)
+            plane = list(IN_PLANE)
+            outcome = c.on_sample(t, estimate[plane], v, altitude, noisy[plane])
             spent[f"nav-{d.name}"] += t1 - t0
             spent[f"ctrl-{d.name}"] += clock() - t1
             if outcome.learn_log is not None:

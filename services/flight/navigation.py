@@ -33,6 +33,13 @@ BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
 """The params of a bias fault: position (m) and velocity (m/s) bias, in navigation's frame."""
 
 
+def noise_generator(dep: Deployment, deputy: Deputy) -> np.random.Generator:
+    """The deputy's navigation noise draws: seeded by run.seed, navigation.seed and its name,
+    so each deputy's noise is its own, whichever other deputies fly (and the one-process
+    baseline draws what the navigation service does)."""
+    return np.random.default_rng([dep.run.seed, deputy.navigation.seed, sum(map(ord, deputy.name))])
+
+
 def navigation_filter(dep: Deployment, deputy: Deputy) -> RelativeNavFilter | None:
     """The deputy's relative navigation filter as its deployment sets it (HCW at the chief's
     mean motion, the measurement's sigmas, the unmodelled acceleration), or None for
@@ -64,7 +71,7 @@ class NavigationService:
         self.deputy = ctx.deployment.deputy_named(sc)
         cfg = self.deputy.navigation
         self.period = cfg.period
-        self.rng = np.random.default_rng([ctx.deployment.run.seed, cfg.seed, sum(map(ord, sc))])
+        self.rng = noise_generator(ctx.deployment, self.deputy)
         self.sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
         self.bias = np.array(cfg.position_bias + cfg.velocity_bias)
         self.filter = navigation_filter(ctx.deployment, self.deputy)  # None: publish z as is
@@ -173,7 +180,8 @@ class NavigationService:
         if self.filter is not None:
             x, cov = self.filter.update(t, x)
         altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
-        body = {"sc": sc, "x_hill": x, "cov": cov, "altitude": altitude, "valid": True}
+        body = {"sc": sc, "x_hill": x, "z_hill": self.measured, "cov": cov, "altitude": altitude,
+                "valid": True}  # fmt: skip
         self.ctx.bus.publish(nav_state_topic(sc), "nav", body, t)
         self.counters["published"] += 1
         self.last_t = t

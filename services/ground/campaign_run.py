@@ -55,11 +55,12 @@ def _gain_error(dep: Deployment, name: str, K: Any) -> float | None:
     return float(np.linalg.norm(K - K_star) / np.linalg.norm(K_star))
 
 
-def inprocess_metrics(dep: Deployment, seed: int) -> dict[str, Any]:
-    """Run the mission in this process; each deputy's metrics (see :data:`METRICS`)."""
+def inprocess_metrics(dep: Deployment) -> dict[str, Any]:
+    """Run the mission in this process (its noise from run.seed, the run's seed); each
+    deputy's metrics (see :data:`METRICS`)."""
     from services.flight.inprocess import run_in_process
 
-    out = run_in_process(dep, noise_seed=seed)
+    out = run_in_process(dep)
     period = orbit_period(dep)
     row: dict[str, Any] = {}
     for d in dep.deputy:
@@ -142,7 +143,7 @@ def execute(task: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
                 with tempfile.TemporaryDirectory(prefix="ddvi-campaign-") as tmp:
                     row.update(distributed_metrics(dep, task["table"], Path(tmp)))
         else:
-            row.update(inprocess_metrics(dep, task["seed"]))
+            row.update(inprocess_metrics(dep))
         row["completed"] = True
     except _IncompleteError as exc:
         row.update(exc.row, error=str(exc))

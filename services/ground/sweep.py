@@ -181,7 +181,7 @@ def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any
     from services.model import ReentryError, lqr_gains, orbit_period
 
     try:
-        out = run_in_process(dep, noise_seed=dep.run.seed)
+        out = run_in_process(dep)
     except ReentryError as exc:
         why = _note(str(exc))
         return [_row(point, d.name, d.controller, completed=False, note=why) for d in dep.deputy]

@@ -116,7 +116,7 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
     ),
     Schema(
         "nav",
-        1,
+        2,
         {
             "sc": _DEPUTY,
             "x_hill": Array(
@@ -124,6 +124,12 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
                 unit="m, m/s",
                 doc="[x, y, z, xdot, ydot, zdot] relative to the chief: the filter's estimate "
                 "(navigation.filter), or the measurement with its noise; with the bias",
+            ),
+            "z_hill": Array(
+                (6,),
+                unit="m, m/s",
+                doc="the measurement x_hill was estimated from: the relative state with its "
+                "noise and bias, before the filter (x_hill itself without one)",
             ),
             "cov": Array(
                 (6, 6),

@@ -39,6 +39,7 @@ def nav_body(x: float = 0.0) -> dict[str, Any]:
     return {
         "sc": "deputy1",
         "x_hill": np.full(6, x),
+        "z_hill": np.full(6, x),
         "cov": np.eye(6),
         "altitude": 300e3,
         "valid": True,

@@ -43,7 +43,7 @@ def _gain_error(dep, ctrl: Controller) -> float:
 @pytest.mark.parametrize("base", ["rendezvous", "mismatch-2x"])
 def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
     dep = _fit_only(base, 7.0)
-    out = run_in_process(dep, noise_seed=1)
+    out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
     period = orbit_period(dep)
     assert ctrl.phase == "learned" and ctrl.source == "model-fit"
@@ -63,7 +63,7 @@ def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
 @pytest.mark.integration  # a 7-orbit mission
 def test_an_uncertain_fit_retries_on_a_growing_window():
     dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6)
-    out = run_in_process(dep, noise_seed=1)
+    out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
     assert ctrl.phase == "exploring" and ctrl.learn_attempts == 2  # at orbits 6 and 6.5
     assert not ctrl.learned_at
@@ -73,7 +73,7 @@ def test_an_uncertain_fit_retries_on_a_growing_window():
 @pytest.mark.integration  # a 7-orbit mission
 def test_the_deadline_tolerance_applies_from_its_orbit():
     dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6, fit_deadline_orbits=6.5)
-    ctrl = run_in_process(dep, noise_seed=1)["fit"]["controller"]
+    ctrl = run_in_process(dep)["fit"]["controller"]
     assert ctrl.learn_attempts == 2 and ctrl.phase == "learned"  # refused at 6, taken at 6.5
     assert ctrl.learned_at[0] / orbit_period(dep) == pytest.approx(6.5, abs=0.05)
     assert _gain_error(dep, ctrl) <= 0.02
@@ -126,6 +126,7 @@ def test_realistic_nav_flies_three_controllers_side_by_side():
         ("trim_orbits", -1.0, "trim_orbits: must be >= 0"),
         ("station_radius", 0.0, "station_radius: must be positive"),
         ("trim_gain", 2.0, "trim_gain: must lie in"),
+        ("learn_from", "measurment", "learn_from: expected 'estimate' or 'measurement'"),
     ],
 )
 def test_bad_learner_keys_name_the_key(key, value, message):
@@ -133,3 +134,29 @@ def test_bad_learner_keys_name_the_key(key, value, message):
     table["deputy"][1]["learning"] = {**FIT, key: value}
     with pytest.raises(DeploymentError, match=message):
         deployment_from_table(table, "rendezvous")
+
+
+@pytest.mark.parametrize(("source", "collected"), [("estimate", 1.0), ("measurement", 2.0)])
+def test_the_learner_collects_the_source_its_deployment_names(source, collected):
+    table = read_table("realistic-nav")
+    table["deputy"][2]["learning"]["learn_from"] = source
+    ctrl = Controller(deployment_from_table(table, "realistic-nav"), "fit")
+    v = np.array([1.0, 0.0, 1.0, 0.0, 1.0])
+    for k in range(3):
+        t = ctrl.collect_from + 10.0 * k
+        estimate, measurement = np.full(4, 1.0), np.full(4, 2.0)
+        assert ctrl.collect(t, estimate, v, 300e3, measurement) is None
+    assert np.all(ctrl.collector.data().x == collected)
+
+
+def test_a_refresh_waits_for_refresh_orbits_on_station():
+    """A fly-through of the station radius is not a stay on station: no refit from it."""
+    ctrl = Controller(load_deployment("realistic-nav"), "fit")
+    ctrl.phase, ctrl.refresh = "learned", ctrl.new_collector()
+    L = ctrl.L.copy()
+    v = np.array([1.0, 0.0, 1.0, 0.0, 1.0])
+    for k in range(100):  # 1000 s within the radius, then gone
+        ctrl.collect(10.0 * k, np.zeros(4), v, 300e3, np.zeros(4))
+    log = ctrl.refresh_feedforward(2000.0)
+    assert "not refitted" in log and "less than refresh_orbits" in log
+    assert np.array_equal(ctrl.L, L)

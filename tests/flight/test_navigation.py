@@ -65,3 +65,19 @@ def test_a_bad_filter_setting_is_refused_in_one_line(navigation: dict, text: str
     with pytest.raises(DeploymentError) as info:
         short(**navigation)
     assert text in str(info.value) and "\n" not in str(info.value)
+
+
+def test_the_one_process_run_draws_the_navigation_services_noise() -> None:
+    """run_in_process draws each deputy's noise as its navigation service does, whichever
+    other deputies fly: the same trajectory to rounding."""
+    from services.flight.inprocess import run_in_process
+
+    dep = with_noise(short(), 1.0)
+    service = fly(dep)["lqr"]
+    table = tomllib.loads(SHORT)
+    table["deputy"][0]["navigation"] = {"position_noise": 1.0, "velocity_noise": 1e-3}
+    other = {"name": "other", "controller": "lqr", "navigation": dict(position_noise=5.0)}
+    table["deputy"].insert(0, other)  # drawn first, from its own generator
+    alone = run_in_process(deployment_from_table(table))["lqr"]
+    assert np.allclose(service["truth"][-1], alone["x"][-1], rtol=0, atol=1e-6)
+    assert np.abs(service["truth"][-1] - service["truth"][0]).max() > 1.0  # it moved

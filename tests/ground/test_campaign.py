@@ -179,7 +179,7 @@ def test_the_report_counts_successes_and_lists_the_worst_runs(tmp_path: Path) ->
 def test_a_failed_mission_is_a_row_with_its_error(monkeypatch: pytest.MonkeyPatch) -> None:
     from services.ground import campaign_run
 
-    def explode(dep, seed):
+    def explode(dep):
         raise FloatingPointError("the truth diverged")
 
     monkeypatch.setattr(campaign_run, "inprocess_metrics", explode)

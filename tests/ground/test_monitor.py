@@ -175,6 +175,7 @@ class Mission:
             nav = {
                 "sc": sc,
                 "x_hill": rv_to_hill(rc, vc, rd, vd) + 0.01,
+                "z_hill": rv_to_hill(rc, vc, rd, vd) + 0.02,
                 "cov": np.eye(6) * 1e-4,
                 "altitude": 300e3,
                 "valid": True,
@@ -391,6 +392,7 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
             body = {
                 "sc": "alpha",
                 "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3],
+                "z_hill": [1.1, 2.1, 3.1, 0.1, 0.2, 0.3],
                 "cov": np.eye(6).tolist(),
                 "altitude": 300e3,
                 "valid": True,

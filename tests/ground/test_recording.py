@@ -29,6 +29,7 @@ def test_a_recording_reads_back_message_rejection_and_liveliness(tmp_path: Path)
     body = {
         "sc": "alpha",
         "x_hill": np.arange(6.0),
+        "z_hill": np.arange(6.0) + 0.5,
         "cov": np.eye(6),
         "altitude": 300e3,
         "valid": True,

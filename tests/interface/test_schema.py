@@ -37,6 +37,7 @@ SAMPLES: dict[str, dict[str, Any]] = {
     "nav": {
         "sc": "deputy1",
         "x_hill": np.linspace(-1, 1, 6),
+        "z_hill": np.linspace(-1.1, 1.1, 6),
         "cov": np.eye(6),
         "altitude": 300e3,
         "valid": True,
@@ -74,13 +75,14 @@ def raw(body: Any = None, **header: Any) -> bytes:
     """A hand-made payload: a valid nav message, with header keys overridden."""
     msg = {
         "schema": "nav",
-        "version": 1,
+        "version": SCHEMAS.get(header.get("schema"), SCHEMAS["nav"]).version,
         "seq": 0,
         "t": 0.0,
         "src": "test",
         "body": {
             "sc": "d1",
             "x_hill": [0.0] * 6,
+            "z_hill": [0.0] * 6,
             "cov": [[0.0] * 6] * 6,
             "altitude": 300e3,
             "valid": True,
@@ -199,13 +201,13 @@ def test_unknown_and_wrong_schema_and_version() -> None:
     assert info.value.reason == "unknown_schema"
     assert reason_of(raw(), expected="cmd") == "wrong_schema"
     assert reason_of(raw(), expected=["cmd", "truth"]) == "wrong_schema"
-    assert reason_of(raw(version=2)) == "version"
+    assert reason_of(raw(version=SCHEMAS["nav"].version + 1)) == "version"
 
 
 def nav(**fields: Any) -> dict[str, Any]:
     """A nav body with fields replaced (a value of ... removes the field)."""
-    body = {"sc": "d", "x_hill": [0.0] * 6, "cov": [[0.0] * 6] * 6, "altitude": 300e3,
-            "valid": True, **fields}  # fmt: skip
+    body = {"sc": "d", "x_hill": [0.0] * 6, "z_hill": [0.0] * 6, "cov": [[0.0] * 6] * 6,
+            "altitude": 300e3, "valid": True, **fields}  # fmt: skip
     return {k: v for k, v in body.items() if v is not ...}
 
 
@@ -326,7 +328,7 @@ def _messages(draw: st.DrawFn) -> bytes:
         body[draw(st.text(max_size=6))] = draw(_values)
     msg: dict[str, Any] = {
         "schema": name,
-        "version": 1,
+        "version": SCHEMAS[name].version,
         "seq": 0,
         "t": 0.0,
         "src": "s",
@@ -432,8 +434,9 @@ def _edges() -> list[tuple[str, dict[str, Any]]]:
     cases = []
     for name in sorted(SCHEMAS):
         body = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in SAMPLES[name].items()}
-        msg = {"schema": name, "version": 1, "seq": 0, "t": 0.0, "src": "s", "body": body}
-        cases += [(name, msg), (name, {**msg, "extra": 1}), (name, {**msg, "version": 2})]
+        version = SCHEMAS[name].version
+        msg = {"schema": name, "version": version, "seq": 0, "t": 0.0, "src": "s", "body": body}
+        cases += [(name, msg), (name, {**msg, "extra": 1}), (name, {**msg, "version": version + 1})]
         cases += [(name, {k: v for k, v in msg.items() if k != "src"})]
         for key, value in (("seq", -1), ("seq", 2.0), ("t", math.nan), ("t", -math.inf),
                            ("t", 3), ("src", ""), ("src", 5)):  # fmt: skip
@@ -500,8 +503,9 @@ def test_compiled_encode_agrees_on_numpy_values(field: str, value: Any) -> None:
 
 
 def test_compiled_encode_takes_numpy_scalars() -> None:
-    body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "cov": np.zeros((6, 6)),
-            "altitude": np.float64(3e5), "valid": np.bool_(True)}  # fmt: skip
+    body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "z_hill": np.zeros(6),
+            "cov": np.zeros((6, 6)), "altitude": np.float64(3e5),
+            "valid": np.bool_(True)}  # fmt: skip
     assert codec_module._COMPILED["nav"].wire(body) is not None
     payload = encode("nav", body, seq=1, t=2.0, src="svc")
     assert payload == _by_field_kinds(lambda: encode("nav", body, seq=1, t=2.0, src="svc"))
