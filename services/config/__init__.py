@@ -5,7 +5,13 @@ they use is ``ddvi_core.tables``.  A deployment is data: reading one starts noth
 May import: ``ddvi_core``, ``services.bus`` (its link model). Not models, processes or tools.
 """
 
-from services.config.deployment import Deployment, DeploymentError, Deputy, Orbit
+from services.config.deployment import (
+    Deployment,
+    DeploymentError,
+    Deputy,
+    Orbit,
+    controller_label,
+)
 from services.config.files import load_deployment, read_table, resolve, write_deployment
 from services.config.validation import check_panel, deployment_from_table
 
@@ -15,6 +21,7 @@ __all__ = [
     "Deputy",
     "Orbit",
     "check_panel",
+    "controller_label",
     "deployment_from_table",
     "load_deployment",
     "read_table",

@@ -37,6 +37,7 @@ __all__ = [
     "Restart",
     "Run",
     "SpacecraftSpec",
+    "controller_label",
 ]
 
 
@@ -161,6 +162,17 @@ class Deputy:
         LearningConfig, keys=DEPUTY_LEARNING_KEYS, defaults=MISSION_LEARNING
     )
     attitude_limit: float = 0.2  # |sigma_i| limit (MRP)
+
+    @property
+    def label(self) -> str:
+        """What tables call its controller (``controller_label``)."""
+        return controller_label(self.controller, self.learning.method)
+
+
+def controller_label(controller: str, method: str | None) -> str:
+    """A controller as results tables name it: ``lqr``, or a learner with its
+    learning.method (``ddvi value-iteration``, ``ddvi model-fit``)."""
+    return controller if controller == "lqr" or not method else f"{controller} {method}"
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from ddvi_core.learning_config import LearningConfig
+from services.config import controller_label
 from services.ground.dispersions import CampaignSpec
 
 PERCENTILES = (50, 90, 95, 99)
@@ -50,7 +52,12 @@ def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any
 
 def _controllers(rows: list[dict[str, Any]], spec: CampaignSpec) -> list[str]:
     """Every controller of the deployment (a run that failed at start still counts)."""
-    names = [d.get("controller", "lqr") for d in spec.base.get("deputy", [])]
+    names = [
+        controller_label(
+            d.get("controller", "lqr"), d.get("learning", {}).get("method", LearningConfig.method)
+        )
+        for d in spec.base.get("deputy", [])
+    ]
     return list(dict.fromkeys(names + [o["controller"] for o in outcomes(rows, 1.0)]))
 
 

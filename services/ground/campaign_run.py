@@ -22,7 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from services.config import Deployment, deployment_from_table, write_deployment
+from services.config import (
+    Deployment,
+    controller_label,
+    deployment_from_table,
+    write_deployment,
+)
 from services.model import orbit_period, true_lqr_gains
 
 MODES = ("inprocess", "distributed")
@@ -70,7 +75,7 @@ def inprocess_metrics(dep: Deployment) -> dict[str, Any]:
         last = rec["t"] >= rec["t"][-1] - period
         row.update(
             {
-                f"{d.name}.controller": d.controller,
+                f"{d.name}.controller": d.label,
                 f"{d.name}.final_error_m": float(ey[-1]),
                 f"{d.name}.last_orbit_max_error_m": float(ey[last].max()),
                 f"{d.name}.gain_error": _gain_error(dep, d.name, c.K),
@@ -99,7 +104,7 @@ def distributed_metrics(dep: Deployment, table: dict, folder: Path) -> dict[str,
         gains = d.get("gains") or d.get("lqr_gains") or {}
         row.update(
             {
-                f"{name}.controller": d["controller"],
+                f"{name}.controller": controller_label(d["controller"], d.get("learning_method")),
                 f"{name}.final_error_m": d["final_along_track_error_m"],
                 f"{name}.last_orbit_max_error_m": d["max_along_track_error_last_orbit_m"],
                 f"{name}.gain_error": _gain_error(dep, name, gains.get("K")),

@@ -42,6 +42,7 @@ from typing import Any
 from services.config import (
     Deployment,
     DeploymentError,
+    controller_label,
     deployment_from_table,
     load_deployment,
     read_table,
@@ -109,11 +110,6 @@ def noisy_table(
         if nav_filter is not None:
             nav["filter"] = nav_filter
     return out
-
-
-def controller_label(controller: str, method: str | None) -> str:
-    """The table's controller cell: ``lqr``, or a learner with its learning.method."""
-    return controller if controller == "lqr" or not method else f"{controller} {method}"
 
 
 def _note(text: str) -> str:
@@ -198,12 +194,11 @@ def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any
         scored = lqr or learned  # LQR's gain, or a learned one; not K0 while exploring
         K_true, K_lqr = reference_gains(dep, d)[0], np.asarray(lqr_gains(dep, d)[0])
         note = _note(rec["log"][-1]) if rec["log"] else "no learning attempt"
-        method = getattr(d.learning, "method", None)
         rows.append(
             _row(
                 point,
                 d.name,
-                controller_label(d.controller, method),
+                d.label,
                 completed=True,
                 final_along_track_error_m=float(ey[-1]),
                 max_along_track_error_last_orbit_m=float(ey[t >= t[-1] - period].max()),

@@ -132,10 +132,10 @@ def test_the_shipped_campaign_is_the_default_mission_dispersed() -> None:
 def _row(s, i: int, final: float | None, completed: bool = True) -> dict:
     _, values, seed = draw_run(s, i)
     row = {"run": i, "seed": seed, "completed": completed, "error": None if completed else "boom"}
-    for name, ctrl in (("lqr", "lqr"), ("ddvi", "ddvi")):
+    for name, ctrl in (("lqr", "lqr"), ("ddvi", "ddvi value-iteration")):
         row |= {f"{name}.controller": ctrl, f"{name}.final_error_m": final,
                 f"{name}.last_orbit_max_error_m": final, f"{name}.gain_error": 0.01,
-                f"{name}.learned_at_orbits": 15.0 if ctrl == "ddvi" else None}  # fmt: skip
+                f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None}  # fmt: skip
     return row | values
 
 
@@ -202,3 +202,19 @@ def test_a_run_gives_the_same_row_twice() -> None:
     first, second = execute(task)[0], execute(task)[0]
     assert first == second and first["completed"], first["error"]
     assert first["lqr.gain_error"] > 0  # the truth's density is not the nominal one
+
+
+def test_a_campaign_tells_the_learners_apart() -> None:
+    """Deputies are grouped by controller and learning method: the model-fit learner's runs
+    are not counted with the paper's value iteration's."""
+    from services.ground.campaign_run import execute
+
+    path = Path(__file__).parents[2] / "deployments" / "campaigns" / "realistic-nav-20.toml"
+    s = load_campaign(str(path))
+    table, _, seed = draw_run(s, 0)
+    table["run"]["orbits"] = 0.2
+    row, _ = execute({"run": 0, "seed": seed, "table": table, "mode": "inprocess"})
+    labels = [row[f"{name}.controller"] for name in ("lqr", "ddvi", "fit")]
+    assert labels == ["lqr", "ddvi value-iteration", "ddvi model-fit"]
+    groups = {o["controller"] for o in outcomes([row], s.campaign.success_threshold)}
+    assert groups == set(labels)
