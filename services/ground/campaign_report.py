@@ -92,7 +92,7 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
         final = " / ".join(_fmt(x) for x in _pct([o["final"] for o in mine])) or "-"
         last = _pct([o["last"] for o in mine])
         gain = _pct([o["gain"] for o in mine])
-        learned = sum(o["learned_at"] is not None for o in mine) if ctrl == "ddvi" else None
+        learned = sum(o["learned_at"] is not None for o in mine) if ctrl != "lqr" else None
         lines.append(
             f"| {ctrl} | {len(mine)} | {rate} | {final} | "
             f"{_fmt(last[0]) if last else '-'} / {_fmt(last[2]) if last else '-'} | "

@@ -166,6 +166,7 @@ def test_the_report_counts_successes_and_lists_the_worst_runs(tmp_path: Path) ->
     assert sum(o["success"] for o in oc if o["controller"] == "lqr") == 20  # final < 20 m
     report = write_report(s, tmp_path, rows, "inprocess").read_text()
     assert "| lqr | 31 | 20/31 (64.5%) |" in report
+    assert "| ddvi value-iteration | 31 | 20/31 (64.5%) |" in report and "| 31/31 |" in report
     assert (tmp_path / "final_error.png").stat().st_size > 10_000
     assert (tmp_path / "scatter.png").stat().st_size > 10_000
     worst = report.split("## Worst runs")[1]
