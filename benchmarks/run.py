@@ -32,6 +32,7 @@ BENCHMARKS: dict[str, str] = {
     "learning": "benchmarks.learning:bench_learning",
     "swarm": "benchmarks.mission:bench_swarm",
     "basilisk": "benchmarks.mission:bench_basilisk",
+    "flight": "benchmarks.flight:bench_flight",
 }
 
 

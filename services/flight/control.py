@@ -470,20 +470,24 @@ class Controller:
         )
 
     def refresh_feedforward(self, t: float) -> str:
-        """Refit the model fit's D, with its A and B held, on the last ``refresh_orbits`` of
-        data flown on the learned gains on station (within ``station_radius`` of the slot
-        all that time), and fly the feedforward L = U + K X of the regulator equations on it:
-        the drag offset the exploration saw far behind the slot is not the one at the slot.
-        Returns the log line; a refit that fails keeps the L in force."""
+        """Refit the model fit's D, with its A and B held, on the data flown on the learned
+        gains since one ``refresh_orbits`` after the deputy came on station (within
+        ``station_radius`` of the slot, and at least ``refresh_orbits`` of them), and fly the
+        feedforward L = U + K X of the regulator equations on it: the drag offset the
+        exploration saw far behind the slot is not the one at the slot.  Returns the log
+        line; a refit that fails keeps the L in force."""
         lrn, C, E, F = self.deputy.learning, *self.exosystem
         period = lrn.refresh_orbits * orbit_period(self.dep)
         self.next_refresh = t + period
-        # the last period and one interval before it: each refit corrects the feedforward the
-        # last one left (older data hold the approach's settling, where the fit's A errors
-        # leak into D); only the newest stay on station (a fly-through is not one)
-        data = self.refresh.data().since(max(self.learning_window(t), t - period - lrn.interval))
+        # the newest stay on station only (a fly-through is not one), less its first period,
+        # the approach's settling, where the fit's A errors leak into D; a window that grows
+        # with the stay, for the noise (a sliding one of 2 to 6 orbits swung the deputy
+        # kilometres off at 10 m of noise)
+        data = self.refresh.data().since(self.learning_window(t))
         if data.samples:
             data = data.since(float(data.t[data.segment == data.segment[-1]][0]))
+        if data.samples:
+            data = data.since(min(float(data.t[0]) + period, t - period - lrn.interval))
         span = float(data.t[-1] - data.t[0]) if data.samples else 0.0
         if span < period - 1e-6:
             return (
