@@ -1,7 +1,7 @@
 """``ddvi bench``: every benchmark, each against its baseline measured in the same run.
 
     ddvi bench            # the full set
-    ddvi bench --quick    # short versions, under a minute
+    ddvi bench --quick    # short versions, about a minute
     ddvi bench --json     # one JSON list of rows on stdout
 
 Each row gives the project's figure, the baseline's, and the cost ratio (above 1: the project
@@ -51,7 +51,7 @@ def _fmt(value: float) -> str:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="ddvi bench", description=__doc__)
-    parser.add_argument("--quick", action="store_true", help="short versions, under a minute")
+    parser.add_argument("--quick", action="store_true", help="short versions, about a minute")
     parser.add_argument("--json", action="store_true", help="machine-readable rows on stdout")
     parser.add_argument(
         "--only", nargs="+", choices=list(BENCHMARKS), help="run only these benchmarks"
