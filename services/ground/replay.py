@@ -19,7 +19,7 @@ from services.config import Deployment
 from services.ground.outcome import TIME_MASTER
 from services.ground.report import write_report
 from services.ground.rundata import RunData
-from services.interface import REASONS, MessageError, decode, encode, topics
+from services.interface import REASONS, MessageError, decode, encode, topics, upgrade
 
 log = logging.getLogger("ddvi.report")
 
@@ -33,9 +33,11 @@ def _counters() -> dict[str, int]:
 
 
 def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
-    """The recorded JSON message as a decoded Message (None, counted, when it is not one)."""
+    """The recorded JSON message as a decoded Message, its body upgraded to the current
+    version of its schema (None, counted, when it is not one)."""
     try:
-        payload = encode(data["schema"], data["body"], seq=data["seq"], t=data["t"],
+        body = upgrade(data["schema"], data["version"], data["body"])
+        payload = encode(data["schema"], body, seq=data["seq"], t=data["t"],
                          src=data["src"])  # fmt: skip
         return decode(payload, data["schema"])
     except (MessageError, KeyError, TypeError) as exc:

@@ -30,7 +30,7 @@ from services.interface.fields import (
     ScalarMap,
     Str,
 )
-from services.interface.messages import HEADER, HEADER_KEYS, SCHEMAS, Message, Schema
+from services.interface.messages import HEADER, HEADER_KEYS, SCHEMAS, Message, Schema, upgrade
 from services.interface.topics import (
     CLOCK,
     EXOSTATE,
@@ -95,4 +95,5 @@ __all__ = [
     "topics_subscribed_by",
     "truth_topic",
     "unpack_batch",
+    "upgrade",
 ]

@@ -13,7 +13,7 @@ Units: SI (m, m/s, s, rad); "1" is a pure number, "count" a number of things, "-
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -225,3 +225,22 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
     ),
 )
 """Every message type of the system, by name."""
+
+
+UPGRADES: Mapping[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
+    # nav 1 had no measurement, and its first recordings no covariance: the estimate stands
+    # in for the measurement (it is the measurement without a filter), an unknown
+    # covariance is recorded as zero
+    ("nav", 1): lambda body: {"z_hill": body.get("x_hill"), "cov": [[0.0] * 6] * 6, **body},
+}
+"""How a recorded body of an older version becomes the current one, by (schema, version)."""
+
+
+def upgrade(schema: str, version: int, body: dict[str, Any]) -> dict[str, Any]:
+    """A recorded message's body in the current version of its schema: ``body`` as it is when
+    ``version`` is current (or the schema unknown), else through UPGRADES, one version at a
+    time.  Live messages are not upgraded: a sender of another version is refused."""
+    spec = SCHEMAS.get(schema)
+    while spec is not None and version < spec.version and (schema, version) in UPGRADES:
+        body, version = UPGRADES[(schema, version)](body), version + 1
+    return body

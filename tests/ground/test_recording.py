@@ -50,3 +50,23 @@ def test_a_recording_reads_back_message_rejection_and_liveliness(tmp_path: Path)
     assert rejected.data["payload_b64"] == "AAE=" and rejected.data["truncated"] is False
     assert alive.topic == "alive/nav-alpha"
     assert alive.data == {"service": "nav-alpha", "alive": False}
+
+
+def test_a_recorded_message_of_an_older_version_is_upgraded_on_replay() -> None:
+    """A nav message recorded before the measurement and covariance fields replays with the
+    estimate as its measurement and a zero covariance; a current one replays as recorded."""
+    from services.ground.replay import _counters, _message
+
+    old = {"schema": "nav", "version": 1, "seq": 3, "t": 10.0, "src": "nav-alpha",
+           "body": {"sc": "alpha", "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3], "altitude": 3e5,
+                    "valid": True}}  # fmt: skip
+    counters = _counters()
+    msg = _message("nav/alpha/state", old, counters)
+    assert counters["rejected"] == 0 and msg.version == SCHEMAS["nav"].version
+    assert np.array_equal(msg.body["z_hill"], msg.body["x_hill"]) and not msg.body["cov"].any()
+    current = {**old, "version": SCHEMAS["nav"].version,
+               "body": {**old["body"], "z_hill": [0.0] * 6, "cov": np.eye(6).tolist()}}  # fmt: skip
+    msg = _message("nav/alpha/state", current, counters)
+    assert not msg.body["z_hill"].any() and msg.body["cov"][0, 0] == 1.0
+    broken = {**old, "body": {"sc": "alpha"}}  # no upgrade makes this a nav message
+    assert _message("nav/alpha/state", broken, counters) is None and counters["rejected"] == 1
