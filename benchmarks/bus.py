@@ -37,6 +37,7 @@ import zenoh
 
 from services.bus import Bus, BusSettings, LinkModel, LinkSpec, open_session
 from services.ground.launcher import free_port
+from services.interface import SCHEMAS
 
 RUN = "bench"
 STEP_BATCH = 6  # messages of a topic in one lock-step step (six 10 s samples a 60 s step)
@@ -95,7 +96,13 @@ class _Side:
             self.bus.publish(f"{self.me}/{kind}", "nav", BODY, t)
             return
         self._seq += 1
-        header = {"schema": "nav", "version": 1, "seq": self._seq, "t": t, "src": self.me}
+        header = {
+            "schema": "nav",
+            "version": SCHEMAS["nav"].version,
+            "seq": self._seq,
+            "t": t,
+            "src": self.me,
+        }
         self.pubs[kind].put(msgpack.packb({**header, "body": _plain_body()}))
 
     def close(self) -> None:

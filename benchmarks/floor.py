@@ -48,6 +48,7 @@ import zenoh
 
 from services.bus import SERVICE_ZENOH_RUNTIME, Bus, BusSettings, open_session, wait_for_alive
 from services.ground.launcher import free_port
+from services.interface import SCHEMAS
 from services.interface.topics import (
     CLOCK,
     EXOSTATE,
@@ -112,7 +113,7 @@ class _Plain:
             pub = self._pubs[topic] = self.session.declare_publisher(
                 _key(topic), congestion_control=block
             )
-        header = {"schema": kind, "version": 1, "src": self.name}
+        header = {"schema": kind, "version": SCHEMAS[kind].version, "src": self.name}
         messages = [
             {**header, "seq": seq, "t": t, "body": _body(kind, sc, t, list)}
             for seq, t in enumerate(times)

@@ -471,11 +471,13 @@ class Controller:
 
     def refresh_feedforward(self, t: float) -> str:
         """Refit the model fit's D, with its A and B held, on the data flown on the learned
-        gains since one ``refresh_orbits`` after the deputy came on station (within
-        ``station_radius`` of the slot, and at least ``refresh_orbits`` of them), and fly the
-        feedforward L = U + K X of the regulator equations on it: the drag offset the
-        exploration saw far behind the slot is not the one at the slot.  Returns the log
-        line; a refit that fails keeps the L in force."""
+        gains in the deputy's newest stay on station (within ``station_radius`` of the slot
+        without a break, at least ``refresh_orbits`` P of it), and fly the feedforward
+        L = U + K X of the regulator equations on it: the drag offset the exploration saw far
+        behind the slot is not the one at the slot.  The window is the stay less its first P
+        (the settling), but never shorter than the last P and one interval: a stay shorter
+        than 2 P + interval is refitted from its last P + interval, its settling included.
+        Returns the log line; a refit that fails keeps the L in force."""
         lrn, C, E, F = self.deputy.learning, *self.exosystem
         period = lrn.refresh_orbits * orbit_period(self.dep)
         self.next_refresh = t + period
@@ -504,8 +506,9 @@ class Controller:
             return f"feedforward refit at t = {t:.0f} s failed, L kept: {exc}"
         self.L = feedforward_gain(self.K, X, U)
         if self.trim is not None:
-            # the refit saw the trim in the inputs it was fitted on: it replaces it, not adds
-            self.trim.total = 0.0
+            # the refit saw the trim in the inputs it was fitted on: it replaces it, and the
+            # errors flown before it are no one's to correct
+            self.trim.restart(t)
         return (
             f"feedforward refitted at t = {t:.0f} s from {data.samples} samples on the learned "
             f"gains: D[:, 0] = {np.round(D[:, 0], 12).tolist()}, L = {self.L.ravel().tolist()}"

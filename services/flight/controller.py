@@ -102,7 +102,8 @@ class ControllerService:
             ctx.bus.latency("environment", EXOSTATE),
         )
         self.pairs = SamplePairs(("nav", "exo"))  # nav: (x, altitude, z); exo: v
-        self.ready: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}  # not yet collected
+        # samples not yet collected: t -> (x, v, altitude, z), as Sample without its t
+        self.ready: dict[float, tuple[np.ndarray, np.ndarray, float, np.ndarray]] = {}
         self.last: Sample | None = None  # newest collected sample
         # collected samples a step may still fly on (up to its delay behind it)
         self.recent: collections.deque[Sample] = collections.deque(

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import queue
 import sys
+import zlib
 
 import numpy as np
 
@@ -34,10 +35,12 @@ BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
 
 
 def noise_generator(dep: Deployment, deputy: Deputy) -> np.random.Generator:
-    """The deputy's navigation noise draws: seeded by run.seed, navigation.seed and its name,
-    so each deputy's noise is its own, whichever other deputies fly (and the one-process
-    baseline draws what the navigation service does)."""
-    return np.random.default_rng([dep.run.seed, deputy.navigation.seed, sum(map(ord, deputy.name))])
+    """The deputy's navigation noise draws: seeded by run.seed, navigation.seed and its name
+    (its CRC-32: names of the same letters differ), so each deputy's noise is its own,
+    whichever other deputies fly (and the one-process baseline draws what the navigation
+    service does)."""
+    name = zlib.crc32(deputy.name.encode())
+    return np.random.default_rng([dep.run.seed, deputy.navigation.seed, name])
 
 
 def navigation_filter(dep: Deployment, deputy: Deputy) -> RelativeNavFilter | None:

@@ -43,6 +43,11 @@ class StationTrim:
         self.errors: list[float] = []
         self.total = 0.0  # the feedforward's constant term moved by this so far (rad)
 
+    def restart(self, t: float) -> None:
+        """The feedforward was replaced at t (a refit): no trim in it, and the period's
+        errors, flown before, dropped; the next update a period from t."""
+        self.total, self.errors, self.next_update = 0.0, [], t + self.period
+
     def add(self, t: float, error: float) -> None:
         """One navigation sample's along-track error y - y_ref (m) at t (s)."""
         if t >= self.next_update - self.period - 1e-6 and math.isfinite(error):

@@ -19,7 +19,15 @@ from services.config import Deployment
 from services.ground.outcome import TIME_MASTER
 from services.ground.report import write_report
 from services.ground.rundata import RunData
-from services.interface import REASONS, MessageError, decode, encode, topics, upgrade
+from services.interface import (
+    REASONS,
+    SCHEMAS,
+    MessageError,
+    decode,
+    encode,
+    topics,
+    upgrade,
+)
 
 log = logging.getLogger("ddvi.report")
 
@@ -36,7 +44,11 @@ def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
     """The recorded JSON message as a decoded Message, its body upgraded to the current
     version of its schema (None, counted, when it is not one)."""
     try:
-        body = upgrade(data["schema"], data["version"], data["body"])
+        body, version = upgrade(data["schema"], data["version"], data["body"])
+        spec = SCHEMAS.get(data["schema"])
+        if spec is not None and isinstance(body, dict) and version != spec.version:
+            raise MessageError("version", f"{spec.name}: recorded at version {version}, which "
+                               f"this version ({spec.version}) cannot read")  # fmt: skip
         payload = encode(data["schema"], body, seq=data["seq"], t=data["t"],
                          src=data["src"])  # fmt: skip
         return decode(payload, data["schema"])

@@ -180,7 +180,7 @@ def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any
         out = run_in_process(dep)
     except ReentryError as exc:
         why = _note(str(exc))
-        return [_row(point, d.name, d.controller, completed=False, note=why) for d in dep.deputy]
+        return [_row(point, d.name, d.label, completed=False, note=why) for d in dep.deputy]
     period = orbit_period(dep)
     rows = []
     for d in dep.deputy:

@@ -236,11 +236,19 @@ UPGRADES: Mapping[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] =
 """How a recorded body of an older version becomes the current one, by (schema, version)."""
 
 
-def upgrade(schema: str, version: int, body: dict[str, Any]) -> dict[str, Any]:
-    """A recorded message's body in the current version of its schema: ``body`` as it is when
-    ``version`` is current (or the schema unknown), else through UPGRADES, one version at a
-    time.  Live messages are not upgraded: a sender of another version is refused."""
+def upgrade(schema: str, version: int, body: Any) -> tuple[Any, int]:
+    """A recorded message's body and version, brought to the current version of its schema
+    through UPGRADES one version at a time, as far as they go: the version returned is the
+    current one only when the upgrade succeeded (a body that is not a map, a newer version or
+    an older one with no upgrade come back as they are, for the caller to refuse).  Live
+    messages are not upgraded: a sender of another version is refused."""
     spec = SCHEMAS.get(schema)
-    while spec is not None and version < spec.version and (schema, version) in UPGRADES:
+    while (
+        spec is not None
+        and isinstance(body, dict)
+        and isinstance(version, int)
+        and version < spec.version
+        and (schema, version) in UPGRADES
+    ):
         body, version = UPGRADES[(schema, version)](body), version + 1
-    return body
+    return body, version

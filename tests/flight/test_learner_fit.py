@@ -149,14 +149,58 @@ def test_the_learner_collects_the_source_its_deployment_names(source, collected)
     assert np.all(ctrl.collector.data().x == collected)
 
 
-def test_a_refresh_waits_for_refresh_orbits_on_station():
-    """A fly-through of the station radius is not a stay on station: no refit from it."""
-    ctrl = Controller(load_deployment("realistic-nav"), "fit")
+def _on_station(ctrl, times, y=0.0) -> None:
+    """Feed the controller's refresh samples at ``times`` (s), along-track error ``y`` (m)."""
+    n = ctrl.n_rate
+    for t in times:
+        v = np.array([1.0, np.cos(n * t), np.sin(n * t), np.cos(2 * n * t), np.sin(2 * n * t)])
+        x = np.array([0.0, y, 0.0, 0.0])
+        ctrl.collect(float(t), x, v, 300e3, x)
+
+
+def _learned(dep, name="fit"):
+    """A model-fit controller flying learned gains, its fit the truth's own linear model."""
+    from types import SimpleNamespace
+
+    from services.model import true_problem
+
+    ctrl = Controller(dep, name)
+    p = true_problem(dep, ctrl.deputy)
     ctrl.phase, ctrl.refresh = "learned", ctrl.new_collector()
-    L = ctrl.L.copy()
-    v = np.array([1.0, 0.0, 1.0, 0.0, 1.0])
-    for k in range(100):  # 1000 s within the radius, then gone
-        ctrl.collect(10.0 * k, np.zeros(4), v, 300e3, np.zeros(4))
-    log = ctrl.refresh_feedforward(2000.0)
-    assert "not refitted" in log and "less than refresh_orbits" in log
-    assert np.array_equal(ctrl.L, L)
+    ctrl.result = SimpleNamespace(model=SimpleNamespace(A=p.A, B=p.B))
+    return ctrl
+
+
+def test_a_refresh_waits_for_a_stay_of_refresh_orbits_and_fits_that_stay_only():
+    """A fly-through of the station radius is not a stay: a refit waits for refresh_orbits P
+    of uninterrupted stay, and fits the newest stay's last P and one interval."""
+    dep = load_deployment("realistic-nav")
+    ctrl = _learned(dep)
+    P = 2.0 * orbit_period(dep)  # refresh_orbits = 2
+    ctrl.L = L = np.full_like(ctrl.L, 0.01)  # a refit of still, unforced data gives L = 0
+    _on_station(ctrl, np.arange(0.0, 3000.0, 10.0))  # a fly-through
+    _on_station(ctrl, np.arange(3000.0, 5000.0, 10.0), y=5000.0)  # off station: a gap
+    stay = 5000.0
+    _on_station(ctrl, np.arange(stay, stay + 0.9 * P, 10.0))
+    log = ctrl.refresh_feedforward(stay + 0.9 * P)
+    assert "not refitted" in log and np.array_equal(ctrl.L, L)
+    _on_station(ctrl, np.arange(stay + 0.9 * P, stay + 1.5 * P, 10.0))
+    log = ctrl.refresh_feedforward(stay + 1.5 * P)
+    assert "feedforward refitted" in log and not np.array_equal(ctrl.L, L)
+    window = P + ctrl.deputy.learning.interval  # 1,146 samples of 10 s
+    assert f"from {round(window / 10.0)} samples" in log and not ctrl.L.any()
+
+
+def test_a_refit_replaces_the_trim_and_drops_its_errors():
+    table = read_table("realistic-nav")
+    table["deputy"][2]["learning"]["trim_orbits"] = 2.0
+    dep = deployment_from_table(table, "realistic-nav")
+    ctrl = _learned(dep)
+    ctrl.trim = StationTrim(2.0 * orbit_period(dep), 1000.0, 0.5, start=0.0)
+    ctrl.trim.total = 0.02
+    P = 2.0 * orbit_period(dep)
+    _on_station(ctrl, np.arange(0.0, 1.5 * P, 10.0), y=40.0)
+    assert ctrl.trim.errors
+    assert "feedforward refitted" in ctrl.refresh_feedforward(1.5 * P)
+    assert ctrl.trim.total == 0.0 and not ctrl.trim.errors
+    assert not ctrl.trim.due(1.5 * P + 0.5 * P) and ctrl.trim.due(2.5 * P)

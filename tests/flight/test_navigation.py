@@ -69,15 +69,33 @@ def test_a_bad_filter_setting_is_refused_in_one_line(navigation: dict, text: str
 
 def test_the_one_process_run_draws_the_navigation_services_noise() -> None:
     """run_in_process draws each deputy's noise as its navigation service does, whichever
-    other deputies fly: the same trajectory to rounding."""
+    other deputies fly: the same trajectory to rounding; another run seed, another one."""
     from services.flight.inprocess import run_in_process
 
-    dep = with_noise(short(), 1.0)
-    service = fly(dep)["lqr"]
-    table = tomllib.loads(SHORT)
-    table["deputy"][0]["navigation"] = {"position_noise": 1.0, "velocity_noise": 1e-3}
-    other = {"name": "other", "controller": "lqr", "navigation": dict(position_noise=5.0)}
-    table["deputy"].insert(0, other)  # drawn first, from its own generator
-    alone = run_in_process(deployment_from_table(table))["lqr"]
+    def table(seed: int, other: bool) -> dict:
+        t = tomllib.loads(SHORT)
+        t["run"]["seed"] = seed
+        # on its slot from the start, so the commands follow the noise (not the limit)
+        t["deputy"][0]["y_ref"] = -29139.0
+        t["deputy"][0]["orbit"] = {"a": 6678136.0, "i": 45.0, "raan": 20.0, "argp": 30.0,
+                                   "f": 19.75}  # fmt: skip
+        t["deputy"][0]["navigation"] = {"position_noise": 1.0, "velocity_noise": 1e-3}
+        if other:  # drawn first, from its own generator
+            lone = {"name": "other", "controller": "lqr", "navigation": {"position_noise": 5.0}}
+            t["deputy"].insert(0, lone)
+        return t
+
+    service = fly(deployment_from_table(table(1, other=False)))["lqr"]
+    alone = run_in_process(deployment_from_table(table(1, other=True)))["lqr"]
     assert np.allclose(service["truth"][-1], alone["x"][-1], rtol=0, atol=1e-6)
-    assert np.abs(service["truth"][-1] - service["truth"][0]).max() > 1.0  # it moved
+    assert np.unique(np.round(alone["u"], 6)).size > 10  # the commands follow the noise
+    reseeded = run_in_process(deployment_from_table(table(2, other=True)))["lqr"]
+    assert np.abs(reseeded["x"][-1] - alone["x"][-1]).max() > 1e-3
+
+
+def test_deputies_whose_names_have_the_same_letters_draw_their_own_noise() -> None:
+    from services.flight.navigation import noise_generator
+
+    dep = deployment_from_table(tomllib.loads(SHORT))
+    a, b = (dataclasses.replace(dep.deputy[0], name=n) for n in ("d01", "d10"))
+    assert noise_generator(dep, a).normal() != noise_generator(dep, b).normal()

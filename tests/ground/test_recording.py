@@ -70,3 +70,10 @@ def test_a_recorded_message_of_an_older_version_is_upgraded_on_replay() -> None:
     assert not msg.body["z_hill"].any() and msg.body["cov"][0, 0] == 1.0
     broken = {**old, "body": {"sc": "alpha"}}  # no upgrade makes this a nav message
     assert _message("nav/alpha/state", broken, counters) is None and counters["rejected"] == 1
+    assert _message("nav/alpha/state", {**old, "body": [1.0]}, counters) is None  # not a map
+    newer = {**current, "version": SCHEMAS["nav"].version + 1}  # a later version's: unreadable
+    assert _message("nav/alpha/state", newer, counters) is None
+    cmd = {"schema": "cmd", "version": 0, "seq": 1, "t": 10.0, "src": "ctrl-alpha",
+           "body": {"sc": "alpha", "sigma": [0.0, 0.0, 0.1], "for_t": 10.0}}  # fmt: skip
+    assert _message("cmd/alpha/att", cmd, counters) is None  # an old one with no upgrade
+    assert counters["rejected"] == 4 and counters["rejected.version"] == 2
