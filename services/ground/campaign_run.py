@@ -31,6 +31,10 @@ from services.config import (
 from services.model import orbit_period, true_lqr_gains
 
 MODES = ("inprocess", "distributed")
+ROWS_VERSION = 2
+"""What a row means beyond its campaign file: raised when the same task gives another row (a
+deputy's noise drawn another way, its controller labelled another way), so that ``--resume``
+does not mix the two in one table."""
 METRICS = (
     "controller",
     "final_error_m",

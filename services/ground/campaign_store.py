@@ -23,7 +23,7 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
-from services.ground.campaign_run import deputy_columns
+from services.ground.campaign_run import ROWS_VERSION, deputy_columns
 from services.ground.dispersions import CampaignError, CampaignSpec
 
 FIXED = ["run", "seed", "completed", "error"]
@@ -31,11 +31,18 @@ FIXED = ["run", "seed", "completed", "error"]
 
 def identity(spec: CampaignSpec, mode: str) -> str:
     """What a resumed campaign must share with the table's (its run count aside: a campaign
-    resumed with more runs extends, every run's draws depending on its index alone)."""
+    resumed with more runs extends, every run's draws depending on its index alone), and the
+    version of what its rows mean (``ROWS_VERSION``)."""
     camp = {k: v for k, v in spec.campaign.__dict__.items() if k != "runs"}
     disp = [d.__dict__ | {"values": list(d.values)} for d in spec.dispersions]
     return json.dumps(
-        {"campaign": camp, "base": spec.base, "dispersions": disp, "mode": mode},
+        {
+            "campaign": camp,
+            "base": spec.base,
+            "dispersions": disp,
+            "mode": mode,
+            "rows": ROWS_VERSION,
+        },
         sort_keys=True,
         default=str,
     )

@@ -12,6 +12,7 @@ import pytest
 
 from services.cli import main
 from services.config import read_table
+from services.ground import campaign_store
 from services.ground.campaign import load_campaign
 from services.ground.campaign_report import outcomes, write_report
 from services.ground.campaign_store import ResultStore, read_rows
@@ -148,6 +149,10 @@ def test_the_table_resumes_only_its_own_campaign(tmp_path: Path) -> None:
         ResultStore.open(path, s, "inprocess", resume=False)
     with pytest.raises(CampaignError, match="another campaign's runs"):
         ResultStore.open(path, s, "distributed", resume=True)
+    with pytest.MonkeyPatch.context() as mp:  # rows that mean something else: not mixed in
+        mp.setattr(campaign_store, "ROWS_VERSION", campaign_store.ROWS_VERSION + 1)
+        with pytest.raises(CampaignError, match="another campaign's runs"):
+            ResultStore.open(path, s, "inprocess", resume=True)
     more = copy.deepcopy(CAMPAIGN)
     more["campaign"]["runs"] = 80  # more runs extend the same campaign
     store = ResultStore.open(path, spec(more), "inprocess", resume=True)
