@@ -55,6 +55,8 @@ __all__ = [
     "IntervalData",
     "LearningError",
     "RankDeficientError",
+    "check_dimensions",
+    "check_sample",
     "learn_from_data",
     "unknowns_count",
 ]
@@ -118,6 +120,23 @@ class IntervalData:
         )
 
 
+def check_dimensions(n: int, m: int, q: int) -> None:
+    """A streaming store's sizes: n >= 1 states, m >= 1 inputs, q >= 0 exostates."""
+    if min(n, m) < 1 or q < 0:
+        raise ValueError(f"need n >= 1, m >= 1, q >= 0; got n={n}, m={m}, q={q}")
+
+
+def check_sample(name: str, value: ArrayLike | None, size: int) -> NDArray:
+    """One sample's ``name`` (x, u or v; None: no values) as ``size`` finite floats; raises
+    LearningError naming what is wrong."""
+    a = np.asarray(value if value is not None else [], dtype=float).reshape(-1)
+    if a.size != size:
+        raise LearningError(f"sample {name}: expected {size} values, got {a.size}")
+    if not np.all(np.isfinite(a)):
+        raise LearningError(f"sample {name}: contains a non-finite value {a.tolist()}")
+    return a
+
+
 class IntervalCollector:
     """Streaming accumulator of the interval integrals, for an on-board learner.
 
@@ -139,8 +158,7 @@ class IntervalCollector:
         max_gap: float | None = None,
         max_intervals: int = 100_000,
     ) -> None:
-        if min(n, m) < 1 or q < 0:
-            raise ValueError(f"need n >= 1, m >= 1, q >= 0; got n={n}, m={m}, q={q}")
+        check_dimensions(n, m, q)
         if not (interval > 0 and math.isfinite(interval)):
             raise ValueError(f"interval must be positive seconds, got {interval}")
         self.n, self.m, self.q = n, m, q
@@ -169,20 +187,11 @@ class IntervalCollector:
         """Forget every interval (for example after an actuator fault changes the plant)."""
         self.__init__(self.n, self.m, self.q, self.interval, self.max_gap, self.max_intervals)
 
-    def _check(self, name: str, value: ArrayLike, size: int) -> NDArray:
-        a = np.asarray(value, dtype=float).reshape(-1)
-        if a.size != size:
-            raise LearningError(f"sample {name}: expected {size} values, got {a.size}")
-        if not np.all(np.isfinite(a)):
-            raise LearningError(f"sample {name}: contains a non-finite value {a.tolist()}")
-        return a
-
     def add(self, t: float, x: ArrayLike, u: ArrayLike, v: ArrayLike | None = None) -> None:
         if not math.isfinite(t):
             raise LearningError(f"sample time is not finite: {t}")
-        x = self._check("x", x, self.n)
-        u = self._check("u", u, self.m)
-        v = self._check("v", v if v is not None else [], self.q)
+        x, u = check_sample("x", x, self.n), check_sample("u", u, self.m)
+        v = check_sample("v", v, self.q)
         w = np.concatenate([x, v])
         if self._last is not None:
             t0, w0, u0 = self._last

@@ -33,7 +33,12 @@ import numpy as np
 import scipy.integrate
 from numpy.typing import ArrayLike, NDArray
 
-from ddvi_core.learning import LearningError, RankDeficientError
+from ddvi_core.learning import (
+    LearningError,
+    RankDeficientError,
+    check_dimensions,
+    check_sample,
+)
 from ddvi_core.lqr import NotStabilisingError, solve_lqr
 from ddvi_core.regulator import InfeasibleError, feedforward_gain, solve_regulator_equations
 
@@ -99,8 +104,7 @@ class IntegralHistory:
         max_gap: float | None = None,
         max_samples: int = 100_000,
     ) -> None:
-        if min(n, m) < 1 or q < 0:
-            raise ValueError(f"need n >= 1, m >= 1, q >= 0; got n={n}, m={m}, q={q}")
+        check_dimensions(n, m, q)
         if not (interval > 0 and stride > 0 and math.isfinite(interval + stride)):
             raise ValueError(f"interval and stride must be positive s, got {interval}, {stride}")
         self.n, self.m, self.q = n, m, q
@@ -110,19 +114,11 @@ class IntegralHistory:
         self._last: tuple | None = None  # t, x, u, v, (Ix, Iu, Iv), segment of the last sample
         self.samples = 0
 
-    def _check(self, name: str, value: ArrayLike, size: int) -> NDArray:
-        a = np.asarray(value if value is not None else [], dtype=float).reshape(-1)
-        if a.size != size:
-            raise LearningError(f"sample {name}: expected {size} values, got {a.size}")
-        if not np.all(np.isfinite(a)):
-            raise LearningError(f"sample {name}: contains a non-finite value {a.tolist()}")
-        return a
-
     def add(self, t: float, x: ArrayLike, u: ArrayLike, v: ArrayLike | None = None) -> None:
         if not math.isfinite(t):
             raise LearningError(f"sample time is not finite: {t}")
-        x, u = self._check("x", x, self.n), self._check("u", u, self.m)
-        v = self._check("v", v, self.q)
+        x, u = check_sample("x", x, self.n), check_sample("u", u, self.m)
+        v = check_sample("v", v, self.q)
         if self._last is None:
             sums, segment = (np.zeros(self.n), np.zeros(self.m), np.zeros(self.q)), 0
         else:
@@ -244,6 +240,32 @@ def _fit_report(rank: int, needed: int, rho: int, weakest: NDArray, names: list[
     return "; ".join(parts)
 
 
+def _column_scale(phi: NDArray) -> NDArray:
+    """Each column's RMS (k,) of a regressor phi (rows, k), 1 for a zero column: dividing by
+    it gives every column unit RMS."""
+    scale = np.sqrt(np.mean(phi**2, axis=0)) if phi.shape[0] else np.ones(phi.shape[1])
+    return np.where(scale > 0, scale, 1.0)
+
+
+def _full_rank_lstsq(
+    phi: NDArray, y: NDArray, names: list[str], rtol: float
+) -> tuple[NDArray, NDArray]:
+    """The least-squares theta (k, r) of y (rows, r) ~ phi (rows, k), solved with phi's
+    columns scaled to unit RMS, and the scaled regressor's singular values (k,).  Raises
+    RankDeficientError, naming the weakest column by ``names``, when its rank (singular
+    values above ``rtol`` times the largest) is short of k."""
+    rows, needed = phi.shape
+    if rows == 0 or needed == 0:
+        raise RankDeficientError(_fit_report(0, needed, rows, np.ones(needed), names), 0, needed)
+    scale = _column_scale(phi)
+    _, sv, Vt = np.linalg.svd(phi / scale, full_matrices=False)
+    rank = int(np.sum(sv > rtol * sv[0])) if sv[0] > 0 else 0
+    if rank < needed:
+        raise RankDeficientError(_fit_report(rank, needed, rows, Vt[-1], names), rank, needed)
+    theta, *_ = np.linalg.lstsq(phi / scale, y, rcond=None)
+    return theta / scale[:, None], sv
+
+
 def _design(
     data: IntegralData,
     length: float,
@@ -305,17 +327,8 @@ def fit_linear_model(
     needed, rho = phi.shape[1], phi.shape[0]
     names = [f"int x{k}" for k in range(N.shape[1])] + [f"int u{k}" for k in range(m)]
     names += [f"int v{k}" for k in range(q)]
-    scale = np.sqrt(np.mean(phi**2, axis=0)) if rho else np.ones(needed)
-    scale = np.where(scale > 0, scale, 1.0)
-    scaled = phi / scale
-    if rho == 0:
-        raise RankDeficientError(_fit_report(0, needed, 0, np.ones(needed), names), 0, needed)
-    _, sv, Vt = np.linalg.svd(scaled, full_matrices=False)
-    rank = int(np.sum(sv > rtol * sv[0])) if sv[0] > 0 else 0
-    if rank < needed:
-        raise RankDeficientError(_fit_report(rank, needed, rho, Vt[-1], names), rank, needed)
-    theta, *_ = np.linalg.lstsq(scaled, dx, rcond=None)
-    theta = theta / scale[:, None]  # (needed, n - p): the transposed [A N, B, D]'s fitted rows
+    # (needed, n - p): the transposed [A N, B, D]'s fitted rows
+    theta, sv = _full_rank_lstsq(phi, dx, names, rtol)
     resid = dx - phi @ theta
     dx_rms = float(np.sqrt(np.mean(dx**2)))
     A, B, D = _model(theta, N, m, positions)
@@ -324,7 +337,7 @@ def fit_linear_model(
         B=B,
         D=D,
         intervals=rho,
-        rank=rank,
+        rank=needed,
         needed=needed,
         condition=float(sv[0] / sv[-1]),
         residual=float(np.sqrt(np.mean(resid**2))) / dx_rms if dx_rms > 0 else 0.0,
@@ -423,17 +436,8 @@ def fit_exosystem_input(
     q = phi.shape[1] - n - m
     rest = y - phi[:, :n] @ A.T - phi[:, n : n + m] @ B.T
     phi_v = phi[:, n + m :]
-    names = [f"int v{k}" for k in range(q)]
-    if phi_v.shape[0] == 0 or q == 0:
-        raise RankDeficientError(_fit_report(0, q, phi_v.shape[0], np.ones(q), names), 0, q)
-    scale = np.sqrt(np.mean(phi_v**2, axis=0))
-    scale = np.where(scale > 0, scale, 1.0)
-    _, sv, Vt = np.linalg.svd(phi_v / scale, full_matrices=False)
-    rank = int(np.sum(sv > rtol * sv[0])) if sv[0] > 0 else 0
-    if rank < q:
-        raise RankDeficientError(_fit_report(rank, q, phi_v.shape[0], Vt[-1], names), rank, q)
-    theta, *_ = np.linalg.lstsq(phi_v / scale, rest, rcond=None)
-    D = (theta / scale[:, None]).T
+    theta, _ = _full_rank_lstsq(phi_v, rest, [f"int v{k}" for k in range(q)], rtol)
+    D = theta.T
     D[:positions] = 0.0
     return D
 
@@ -468,8 +472,8 @@ def gain_standard_error(
     n, m = dx.shape[1], np.shape(K)[0]
     if rho <= p:
         return math.inf
-    scale = np.sqrt(np.mean(phi**2, axis=0))
-    Z = phi / np.where(scale > 0, scale, 1.0)
+    scale = _column_scale(phi)
+    Z = phi / scale
     theta, *_ = np.linalg.lstsq(Z, dx, rcond=None)  # (p, n)
     pairs = interval_pairs(data.t, data.segment, length, stride, smoothing)
     start = data.t[pairs[:, 0]]
@@ -484,7 +488,7 @@ def gain_standard_error(
     K = np.asarray(K, dtype=float)
     errors = []
     for dtheta in (noise * np.sqrt(np.clip(w, 0, None))) @ V.T:
-        t = (theta + dtheta.reshape(n, p).T) / np.where(scale > 0, scale, 1.0)[:, None]
+        t = (theta + dtheta.reshape(n, p).T) / scale[:, None]
         A, B, _ = _model(t, N, m, positions)
         try:
             Ki = solve_lqr(A, B, Q, R).K

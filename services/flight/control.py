@@ -312,17 +312,17 @@ class Controller:
             # bias the fit would learn; the measurement's noise is white, which it averages
             x = z
         on_station = abs(error) <= self.deputy.learning.station_radius
+        u, v = self.input_acting(t), self.learner_exostate(v, altitude)
         if self.refresh is not None and self.phase == "learned" and on_station:
             try:  # the gaps off station split the data (no interval spans one)
-                self.refresh.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
+                self.refresh.add(t, x, [u], v)
             except LearningError as exc:
                 return f"sample at t = {t} rejected: {exc}"
         if self.phase == "learned" and self.detector is not None:
-            self.detector.add(t, x, [self.input_acting(t)], self.learner_exostate(v, altitude))
+            self.detector.add(t, x, [u], v)
             return None
         if not self.exploring or t < self.collect_from - 1e-6:
             return None
-        u, v = self.input_acting(t), self.learner_exostate(v, altitude)
         try:
             self.collector.add(t, x, [u], v)
         except LearningError as exc:
