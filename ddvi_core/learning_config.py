@@ -84,7 +84,19 @@ class LearningConfig:
     station_radius: model-fit: on station is within this many m of the slot along track (the
     trim's periods and the refresh's samples);
     density_exostate: the learner's exostate carries the nominal atmosphere's density ratio at
-    the navigated altitude from the start (craft that may differ).
+    the navigated altitude from the start (craft that may differ); not given: the model-fit
+    learner's does (its feedforward keeps the ratio only where the data tell it from zero),
+    value iteration's does not (``carries_density_ratio``);
+    feedforward_significance: model-fit: the feedforward is solved on D with only the
+    exostate modes the data tell from zero at this level (a cluster-robust Wald test,
+    ``ddvi_core.model_fit.fit_exosystem_input``); 0: every mode;
+    feedforward_modes: model-fit: 'all' (D fitted free for every exostate mode) or 'static'
+    (only the modes E holds constant, each along B: a drag offset; harmonics zero);
+    validation_orbits: model-fit: an accepted gain flies only when the model fitted without
+    the newest this many orbits predicts them (each state's residual at most
+    validation_residual times the RMS of its change), the gain stabilises it, and that
+    model's own gain differs from it by at most validation_gain_change (relative)
+    (``services.flight.fitting.validate_gain``); 0: off.
     """
 
     interval: float = 600.0
@@ -131,7 +143,20 @@ class LearningConfig:
     trim_orbits: float = 2.0
     station_radius: float = 1000.0
     trim_gain: float = 0.5
-    density_exostate: bool = False
+    density_exostate: bool | None = None
+    feedforward_significance: float = 0.01
+    feedforward_modes: str = "static"
+    validation_orbits: float = 1.0
+    validation_residual: float = 0.5
+    validation_gain_change: float = 0.25
+
+    @property
+    def carries_density_ratio(self) -> bool:
+        """The learner's exostate carries the density ratio from the start: as
+        ``density_exostate`` says, or when it is not given, for the model-fit learner."""
+        if self.density_exostate is None:
+            return self.method == "model-fit"
+        return self.density_exostate
 
     def steps(self) -> StepSequence:
         from ddvi_core.value_iteration import StepSequence
@@ -234,6 +259,11 @@ FLIGHT_SCHEDULE_KEYS = (
     "station_radius",
     "trim_gain",
     "density_exostate",
+    "feedforward_significance",
+    "feedforward_modes",
+    "validation_orbits",
+    "validation_residual",
+    "validation_gain_change",
 )
 """The LearningConfig fields only the flight software reads (a deployment's learning table)."""
 

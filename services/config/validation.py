@@ -162,6 +162,27 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
     _positive(f"{where}.fit_deadline_tolerance", lrn.fit_deadline_tolerance)
     if not (math.isfinite(lrn.fit_deadline_orbits) and lrn.fit_deadline_orbits >= 0):
         raise DeploymentError(f"{where}.fit_deadline_orbits: must be >= 0 (0 = no deadline)")
+    if not (math.isfinite(lrn.validation_orbits) and lrn.validation_orbits >= 0):
+        raise DeploymentError(f"{where}.validation_orbits: must be >= 0 (0 = no validation)")
+    if not (math.isfinite(lrn.validation_gain_change) and lrn.validation_gain_change > 0):
+        raise DeploymentError(
+            f"{where}.validation_gain_change: must be > 0 (the largest relative difference of "
+            f"the gains fitted with and without the hold-out), got {lrn.validation_gain_change}"
+        )
+    if not 0 < lrn.validation_residual <= 1:
+        raise DeploymentError(
+            f"{where}.validation_residual: must lie in (0, 1] (the hold-out's prediction "
+            f"residual over the RMS of its motion), got {lrn.validation_residual}"
+        )
+    if lrn.feedforward_modes not in ("all", "static"):
+        raise DeploymentError(
+            f"{where}.feedforward_modes: expected 'all' or 'static', got {lrn.feedforward_modes!r}"
+        )
+    if not 0 <= lrn.feedforward_significance < 1:
+        raise DeploymentError(
+            f"{where}.feedforward_significance: must lie in [0, 1) (0 = keep every exostate "
+            f"mode), got {lrn.feedforward_significance}"
+        )
     if not (math.isfinite(lrn.refresh_orbits) and lrn.refresh_orbits >= 0):
         raise DeploymentError(f"{where}.refresh_orbits: must be >= 0 (0 = no refresh)")
     if not (math.isfinite(lrn.trim_orbits) and lrn.trim_orbits >= 0):

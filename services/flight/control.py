@@ -40,13 +40,13 @@ import scipy.linalg
 from ddvi_core.constants import R_EARTH
 from ddvi_core.detection import ChangeDetector, DetectionError, fit_predictor
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
-from ddvi_core.model_fit import IntegralHistory, fit_exosystem_input
+from ddvi_core.model_fit import IntegralHistory
 from ddvi_core.models import drag_allocation
 from ddvi_core.regulator import InfeasibleError, feedforward_gain, solve_regulator_equations
 from ddvi_core.simulate import Exploration
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.config import Deployment
-from services.flight.fitting import POSITIONS, fit_attempt
+from services.flight.fitting import fit_attempt, select_feedforward_modes
 from services.flight.trim import StationTrim
 from services.interface import command_topic
 from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
@@ -114,7 +114,7 @@ class Controller:
         # learner_exostate; a fallback restores the old one): (C, E, F) of the exosystem the
         # learner and L work with
         self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
-        if lrn.density_exostate:  # from the start: craft that may differ (learning.density_...)
+        if lrn.carries_density_ratio:  # from the start: craft that may differ
             self.exosystem = density_exosystem(*self.exosystem)
         if self.mode != "lqr":
             self.L = np.zeros((1, self.exosystem[1].shape[0]))
@@ -422,7 +422,10 @@ class Controller:
         deadline = lrn.fit_deadline_orbits * orbit_period(self.dep)
         late = lrn.fit_deadline_orbits > 0 and self.next_attempt >= deadline - 1e-6
         tolerance = lrn.fit_deadline_tolerance if late else lrn.fit_tolerance
-        r, info, why = fit_attempt(data, lrn, self.problem, self.exosystem, translation, tolerance)
+        holdout = lrn.validation_orbits * orbit_period(self.dep)
+        r, info, why = fit_attempt(
+            data, lrn, self.problem, self.exosystem, translation, tolerance, holdout
+        )
         self.rank, self.rank_needed = info["rank"], info["needed"]
         return r, info, why
 
@@ -459,7 +462,7 @@ class Controller:
         how = (
             f"by a model fit (condition {info['condition']:.3g}, relative residual "
             f"{info['residual']:.3g}, predicted gain error {info['error']:.3g}, "
-            f"B = {info['B']})"
+            f"B = {info['B']}{validated(info)})"
             if lrn.method == "model-fit"
             else f"in {self.iteration} iterations"
         )
@@ -498,9 +501,7 @@ class Controller:
             )
         model = self.result.model
         try:
-            D = fit_exosystem_input(data, model.A, model.B, length=lrn.interval,
-                                    stride=lrn.fit_stride, smoothing=lrn.fit_smoothing,
-                                    positions=POSITIONS)  # fmt: skip
+            D = select_feedforward_modes(data, model, lrn, E, on_station=True)
             X, U = solve_regulator_equations(model.A, model.B, C, D, E, F)
         except (LearningError, InfeasibleError) as exc:
             return f"feedforward refit at t = {t:.0f} s failed, L kept: {exc}"
@@ -513,6 +514,17 @@ class Controller:
             f"feedforward refitted at t = {t:.0f} s from {data.samples} samples on the learned "
             f"gains: D[:, 0] = {np.round(D[:, 0], 12).tolist()}, L = {self.L.ravel().tolist()}"
         )
+
+
+def validated(info: dict) -> str:
+    """The learning log's words on a model-fit gain's validation (none when it was off)."""
+    if "validation" not in info:
+        return ""
+    return (
+        f"; validated on the hold-out: relative prediction residual {info['validation']:.3g}, "
+        f"closed-loop decay {info['validation_margin']:.3g} 1/s, gain "
+        f"{info['validation_gain']:.3g} from that of the fit without it"
+    )
 
 
 def density_exosystem(C: np.ndarray, E: np.ndarray, F: np.ndarray) -> tuple:

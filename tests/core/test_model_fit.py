@@ -15,14 +15,18 @@ from ddvi_core.learning import LearningError, RankDeficientError
 from ddvi_core.lqr import solve_lqr
 from ddvi_core.model_fit import (
     FittedModel,
+    IntegralData,
     IntegralHistory,
     ModelFitError,
+    exostate_groups,
     fit_exosystem_input,
     fit_linear_model,
     gain_standard_error,
     gains_from_model,
     interval_pairs,
     learn_by_model_fit,
+    prediction_residual,
+    static_groups,
 )
 from ddvi_core.models import harmonic_exosystem
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
@@ -162,3 +166,62 @@ def test_kinematic_rows_are_not_fitted():
     assert np.allclose(clean.A, A, atol=2e-6) and np.allclose(clean.B, B, rtol=1e-3)
     with pytest.raises(LearningError, match="positions must lie in"):
         fit_linear_model(data, LENGTH, STRIDE, positions=2)
+
+
+def _with_spurious_mode(data: IntegralData, rate: float) -> IntegralData:
+    """``data`` with one more exostate column, sin(rate t), that the system does not feel."""
+    extra = (1.0 - np.cos(rate * data.t)) / rate  # its running integral from t = 0
+    extra -= extra[0]
+    return IntegralData(data.t, data.x, data.Ix, data.Iu, np.hstack([data.Iv, extra[:, None]]),
+                        data.segment)  # fmt: skip
+
+
+def test_exostate_groups_follow_the_exosystem():
+    E4 = scipy.linalg.block_diag(E, 0.0)  # v = [1, cos, sin, a ratio]
+    assert exostate_groups(E) == [[0], [1, 2]]
+    assert exostate_groups(E4) == [[0], [1, 2], [3]]
+    assert static_groups(E4) == [[0], [3]]
+
+
+def test_a_mode_the_data_cannot_tell_from_zero_is_dropped_and_the_others_kept():
+    data = _with_spurious_mode(simulate(6000, noise=0.01).data(), 0.37 * W)
+    # the velocity row fitted, the position row kinematic (as the controller fits)
+    options = {"length": LENGTH, "stride": STRIDE, "groups": [[0], [1, 2], [3]], "positions": 1}
+    kept = fit_exosystem_input(data, A, B, significance=0.01, **options)
+    every = fit_exosystem_input(data, A, B, **options)
+    assert not kept[:, 3].any() and every[1, 3] != 0.0  # dropped, though fitted nonzero
+    assert np.allclose(kept[:, :3], D, atol=2.5e-6)  # the modes the system feels stay
+    assert np.all(kept[1, :3] != 0.0)
+
+
+def test_a_matched_fit_gives_one_number_per_mode_along_b():
+    data = simulate(6000).data()  # D = B theta: the exostate acts where the input does
+    D_fit = fit_exosystem_input(data, A, B, length=LENGTH, stride=STRIDE, matched=True)
+    assert np.allclose(D_fit, D, atol=1e-7)
+    assert np.allclose(D_fit[0], 0.0)  # along B, whose first row is zero
+
+
+def test_a_refit_of_some_modes_holds_the_others():
+    data = simulate(6000).data()
+    held = D.copy()
+    held[:, 0] = 5.0  # a wrong constant column: refitted, the harmonics held
+    D_fit = fit_exosystem_input(data, A, B, length=LENGTH, stride=STRIDE, groups=[[0]],
+                                held=held)  # fmt: skip
+    assert np.allclose(D_fit, D, atol=1e-7)
+    with pytest.raises(LearningError, match="disjoint"):
+        fit_exosystem_input(data, A, B, length=LENGTH, stride=STRIDE, groups=[[0], [0, 1]])
+
+
+def test_prediction_residual_tells_the_model_from_a_wrong_one():
+    data = simulate(6000).data()
+    fit = fit_linear_model(data.before(6000.0), LENGTH, STRIDE)
+    later = data.since(6000.0)
+    dx = np.asarray(later.x[-1] - later.x[0])
+    good = prediction_residual(fit, later, LENGTH, STRIDE)
+    wrong = prediction_residual(
+        FittedModel(fit.A, 0.5 * fit.B, fit.D, 0, 0, 0, 1.0, 0.0), later, LENGTH, STRIDE
+    )
+    assert good.shape == (2,) and np.all(good < 1e-3 * np.abs(dx).max())
+    assert np.all(wrong[1] > 100 * good[1])
+    with pytest.raises(LearningError, match="no interval"):
+        prediction_residual(fit, data.since(11900.0), LENGTH, STRIDE)

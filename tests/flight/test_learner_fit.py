@@ -204,3 +204,63 @@ def test_a_refit_replaces_the_trim_and_drops_its_errors():
     assert "feedforward refitted" in ctrl.refresh_feedforward(1.5 * P)
     assert ctrl.trim.total == 0.0 and not ctrl.trim.errors
     assert not ctrl.trim.due(1.5 * P + 0.5 * P) and ctrl.trim.due(2.5 * P)
+
+
+def _faulted_before_learning(learn_at: float) -> object:
+    """The rendezvous mission with a model-fit deputy (data from orbit 3, any predicted error
+    accepted) whose panels lose 70 % of their area at orbit 5.3, inside the newest orbit."""
+    table = read_table("rendezvous")
+    table["run"]["orbits"] = 6.6
+    fit = table["deputy"][1]
+    fit["name"], fit["learning"] = (
+        "fit",
+        {**FIT, "learn_at_orbits": learn_at, "fit_tolerance": 100.0},
+    )
+    table["fault"] = [{"at_orbits": 5.3, "kind": "panel", "deputy": "fit", "area_factor": 0.3}]
+    return deployment_from_table(table, "rendezvous")
+
+
+@pytest.mark.integration  # a 6.6-orbit mission
+def test_a_gain_that_fails_its_validation_is_not_flown():
+    """The plant changed inside the hold-out: the gain learned from data across the change
+    does not stabilise the model of the data before it, so it stays unflown, and says why."""
+    dep = _faulted_before_learning(6.5)
+    out = run_in_process(dep)
+    ctrl = out["fit"]["controller"]
+    assert ctrl.phase == "exploring" and not ctrl.learned_at and ctrl.learn_attempts == 1
+    assert np.array_equal(ctrl.K, ctrl.initial_gain())
+    assert "failed validation" in out["fit"]["log"][0]
+    assert "does not stabilise the model fitted without the newest" in out["fit"]["log"][0]
+
+
+@pytest.mark.integration  # a 7-orbit mission
+def test_validation_compares_the_gain_with_that_of_the_fit_without_the_hold_out():
+    from services.flight.fitting import validate_gain
+
+    dep = _fit_only("rendezvous", 7.0)
+    out = run_in_process(dep)
+    ctrl = out["fit"]["controller"]
+    assert "validated on the hold-out" in out["fit"]["log"][0]
+    lrn, data = ctrl.deputy.learning, ctrl.collector.data()
+    options = {"length": lrn.interval, "stride": lrn.fit_stride, "smoothing": 0.0,
+               "translation": [0.0, 1.0, 0.0, 0.0]}  # fmt: skip
+    holdout = orbit_period(dep)
+    info: dict = {}
+    assert validate_gain(data, ctrl.K, ctrl.problem, lrn, options, holdout, info) is None
+    assert info["validation"] < 0.1 and info["validation_margin"] > 0
+    assert info["validation_gain"] < 0.1
+    why = validate_gain(data, 1.5 * ctrl.K, ctrl.problem, lrn, options, holdout, {})
+    assert why is not None and "validation_gain_change = 0.25" in why
+    why = validate_gain(data.since(data.t[-1] - 1.2 * holdout), ctrl.K, ctrl.problem, lrn,
+                        options, holdout, {})  # fmt: skip
+    assert why is not None and "too little to fit on and check" in why
+
+
+def test_the_model_fit_learner_carries_the_density_ratio_unless_told_not_to():
+    table = read_table("realistic-nav")
+    assert "density_exostate" not in table["deputy"][2]["learning"]
+    dep = deployment_from_table(table, "realistic-nav")
+    assert Controller(dep, "fit").L.shape == (1, 6)  # [v; rho / rho_0]
+    assert Controller(dep, "ddvi").L.shape == (1, 5)  # value iteration: v
+    table["deputy"][2]["learning"]["density_exostate"] = False
+    assert Controller(deployment_from_table(table, "realistic-nav"), "fit").L.shape == (1, 5)
