@@ -55,7 +55,8 @@ class LearningConfig:
     The flight software's schedule (:data:`FLIGHT_SCHEDULE_KEYS`, read from a deployment's
     ``deputy.learning`` table, never from a system file; in chief orbits): learn_at_orbits:
     when to learn and switch gains; retry_orbits: after a failed attempt, explore on and try
-    again this much later; window_orbits: learn from the last this many orbits of data (0: all
+    again this much later; learn_until_orbits: no attempt after this orbit (0: no limit);
+    window_orbits: learn from the last this many orbits of data (0: all
     of it); along_track_reference: the data's reference state about its mean along-track
     position; relearn: after learning, watch the plant for a change (an actuator fault) and
     learn again; relearn_settle_orbits: after a detection, K0 stops the approach (not data);
@@ -123,6 +124,7 @@ class LearningConfig:
     # the flight software's schedule (FLIGHT_SCHEDULE_KEYS)
     learn_at_orbits: float = 15.0
     retry_orbits: float = 1.0
+    learn_until_orbits: float = 0.0
     window_orbits: float = 0.0
     along_track_reference: bool = True
     relearn: bool = False
@@ -238,6 +240,7 @@ class LearningConfig:
 FLIGHT_SCHEDULE_KEYS = (
     "learn_at_orbits",
     "retry_orbits",
+    "learn_until_orbits",
     "window_orbits",
     "along_track_reference",
     "relearn",

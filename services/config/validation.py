@@ -143,6 +143,11 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
         raise DeploymentError(
             f"{where}.exploration_amplitude: must lie in [0, attitude_limit = {d.attitude_limit}]"
         )
+    if not (lrn.learn_until_orbits == 0 or lrn.learn_until_orbits >= lrn.learn_at_orbits):
+        raise DeploymentError(
+            f"{where}.learn_until_orbits: must be 0 (no limit) or at least learn_at_orbits "
+            f"({lrn.learn_at_orbits:g}), got {lrn.learn_until_orbits}"
+        )
     if not (math.isfinite(lrn.window_orbits) and lrn.window_orbits >= 0):
         raise DeploymentError(f"{where}.window_orbits: must be >= 0 (0 = all data)")
     for key in ("relearn_window_orbits", "detector_bound", "detector_window_orbits"):

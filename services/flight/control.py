@@ -354,6 +354,12 @@ class Controller:
                     f"flying the gains learned at t = {learned:.0f} s again, fault detector off"
                 )
         self.next_attempt = t + lrn.retry_orbits * orbit_period(self.dep)
+        until = lrn.learn_until_orbits * orbit_period(self.dep)
+        if lrn.learn_until_orbits > 0 and self.next_attempt > until + 1e-6:
+            # far from where it started the linear model no longer holds the data (a deputy
+            # that cannot hold its slot drifts 100 km and more), so a late fit is not trusted
+            self.next_attempt = math.inf
+            return f"{why}; no gain accepted by orbit {lrn.learn_until_orbits:g}: learning stops"
         return f"{why}, exploring on"
 
     def arm_detector(self, since: float) -> str:
