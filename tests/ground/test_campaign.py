@@ -136,7 +136,10 @@ def _row(s, i: int, final: float | None, completed: bool = True) -> dict:
     for name, ctrl in (("lqr", "lqr"), ("ddvi", "ddvi value-iteration")):
         row |= {f"{name}.controller": ctrl, f"{name}.final_error_m": final,
                 f"{name}.last_orbit_max_error_m": final, f"{name}.gain_error": 0.01,
-                f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None}  # fmt: skip
+                f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None,
+                f"{name}.learned": True if name == "ddvi" else None,
+                f"{name}.gain_error_vs_lqr": 0.01 if name == "ddvi" else None,
+                f"{name}.can_hold": True, f"{name}.note": None}  # fmt: skip
     return row | values
 
 
