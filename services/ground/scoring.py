@@ -7,12 +7,13 @@ campaigns share (:func:`deputy_metrics`).
 - learned at: the orbit of its first switch to learned gains (None: never);
 - gain error |K - K*| / |K*| of the gain flown at the end against K*, the optimal gain of the
   truth's linear model of that run (``services.model.true_lqr_gains``), and against the nominal
-  model's LQR gain: only for an LQR deputy (the first; it flies the nominal gain) and a learned
-  gain.  A learner that never learned has no gain error (None: "not learned"), whatever it flies;
+  model's LQR gain: only for an LQR deputy's gain (against K* alone) and a learned gain.  A
+  learner that flies no learned gain at the end has none (None: "not learned"), whatever it
+  flies;
 - can hold: some attitude within its limit matches the chief's drag
   (``services.model.holding_problems``); where none does the note says so;
 - note: why the deputy cannot hold its slot, and why a learner flies no learned gain (its
-  learning's last log line).
+  controller's last log line).
 """
 
 from __future__ import annotations
