@@ -107,7 +107,7 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
             f"{_fmt(last[0]) if last else '-'} / {_fmt(last[2]) if last else '-'} | "
             f"{_fmt(gain[0]) if gain else '-'} / {_fmt(gain[2]) if gain else '-'} | "
             f"{'-' if learned is None else f'{learned}/{len(mine)}'} | "
-            f"{_fmt(at[0]) if at else '-'} / {_fmt(at[-1]) if at else '-'} | "
+            f"{f'{_fmt(at[0])} / {_fmt(at[-1])}' if at else '-'} | "
             f"{infeasible or '-'} |"
         )
     return lines
