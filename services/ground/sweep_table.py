@@ -65,7 +65,7 @@ NOTES = {
     "noise": "nav noise: each deputy's navigation.position_noise (m, 1 sigma per axis), "
     "velocity_noise = {ratio:g} (m/s)/m times it; mismatch f: the truth's density_factor and "
     "every deputy's area_factor f times the deployment's; note: why a deputy cannot hold its "
-    "slot, and why a learner flies no learned gain (its last learning log line).",
+    "slot, and why a learner flies no learned gain (its controller's last log line).",
 }
 
 
