@@ -27,10 +27,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from services.config import DeploymentError, read_table
+from services.config import DeploymentError, deployment_from_table, read_table
 from services.ground.campaign_run import MODES, execute
 from services.ground.campaign_store import ResultStore, read_meta, read_rows
 from services.ground.dispersions import CampaignError, CampaignSpec, draw_run, spec_from_table
+from services.model import holding_warnings
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -71,6 +72,24 @@ def task(spec: CampaignSpec, index: int, mode: str, keep: str | None = None) -> 
         "keep": keep,
         "values": values,
     }
+
+
+def holding_lines(spec: CampaignSpec, tasks: dict[int, dict[str, Any]]) -> list[str]:
+    """Why deputies cannot hold their slot (``services.model.holding_warnings``): the base
+    deployment's, once, when it is infeasible; else each drawn run's that is."""
+    if base := holding_warnings(deployment_from_table(spec.base)):
+        return [f"the base deployment: {why}" for why in base]
+    return [
+        f"run {i}: {why}"
+        for i, t in tasks.items()
+        for why in holding_warnings(deployment_from_table(t["table"]))
+    ]
+
+
+def _say_holding(spec: CampaignSpec, tasks: dict[int, dict[str, Any]]) -> None:
+    """Print :func:`holding_lines` to stderr, before anything runs."""
+    for line in holding_lines(spec, tasks):
+        print(f"ddvi campaign: warning: {line}", file=sys.stderr, flush=True)
 
 
 def run_one(t: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -147,6 +166,7 @@ def run_campaign(
     todo = [i for i in range(spec.campaign.runs) if i not in done]
     token = uuid.uuid4().hex[:8]
     tasks = {i: task(spec, i, mode) for i in todo}
+    _say_holding(spec, tasks)
     futures = {
         client.submit(run_one, t, key=f"ddvi-run-{i}-{token}", pure=False): i
         for i, t in tasks.items()
@@ -179,7 +199,9 @@ def only_run(spec: CampaignSpec, folder: Path, index: int, mode: str) -> int:
     if not 0 <= index < spec.campaign.runs:
         raise CampaignError(f"--only-run: a run index in [0, {spec.campaign.runs - 1}]")
     keep = str(folder / f"run-{index:04d}") if mode == "distributed" else None
-    row, timing = run_one(task(spec, index, mode, keep))
+    t = task(spec, index, mode, keep)
+    _say_holding(spec, {index: t})
+    row, timing = run_one(t)
     print(json.dumps(row, indent=1))
     path = folder / "results.sqlite"
     stored = [r for r in read_rows(path) if r["run"] == index] if path.is_file() else []

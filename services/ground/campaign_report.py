@@ -26,7 +26,7 @@ WORST = 5  # runs listed per controller
 
 def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any]]:
     """One record per run and deputy: run, deputy, controller, final, last (m), gain error,
-    learned_at, completed, success."""
+    learned (None for LQR), learned_at, can_hold, note, completed, success."""
     out = []
     for r in rows:
         for col, controller in r.items():
@@ -34,6 +34,8 @@ def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any
                 continue
             name = col.removesuffix(".controller")
             final = r.get(f"{name}.final_error_m")
+            learned = r.get(f"{name}.learned")
+            can_hold = r.get(f"{name}.can_hold")
             out.append(
                 {
                     "run": r["run"],
@@ -42,7 +44,10 @@ def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any
                     "final": final,
                     "last": r.get(f"{name}.last_orbit_max_error_m"),
                     "gain": r.get(f"{name}.gain_error"),
+                    "learned": None if learned is None else bool(learned),
                     "learned_at": r.get(f"{name}.learned_at_orbits"),
+                    "can_hold": can_hold is None or bool(can_hold),
+                    "note": r.get(f"{name}.note"),
                     "completed": bool(r["completed"]),
                     "success": bool(r["completed"]) and final is not None and final < threshold,
                 }
@@ -83,6 +88,8 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
         "last-orbit max p50 / p95 (m)",
         "gain error p50 / p95",
         "learned",
+        "learned at orbit p50 / max",
+        "cannot hold slot",
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for ctrl in _controllers(rows, spec):
@@ -92,12 +99,16 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
         final = " / ".join(_fmt(x) for x in _pct([o["final"] for o in mine])) or "-"
         last = _pct([o["last"] for o in mine])
         gain = _pct([o["gain"] for o in mine])
-        learned = sum(o["learned_at"] is not None for o in mine) if ctrl != "lqr" else None
+        learned = sum(bool(o["learned"]) for o in mine) if ctrl != "lqr" else None
+        at = _pct([o["learned_at"] for o in mine])
+        infeasible = sum(not o["can_hold"] for o in mine)
         lines.append(
             f"| {ctrl} | {len(mine)} | {rate} | {final} | "
             f"{_fmt(last[0]) if last else '-'} / {_fmt(last[2]) if last else '-'} | "
             f"{_fmt(gain[0]) if gain else '-'} / {_fmt(gain[2]) if gain else '-'} | "
-            f"{'-' if learned is None else f'{learned}/{len(mine)}'} |"
+            f"{'-' if learned is None else f'{learned}/{len(mine)}'} | "
+            f"{f'{_fmt(at[0])} / {_fmt(at[-1])}' if at else '-'} | "
+            f"{infeasible or '-'} |"
         )
     return lines
 
@@ -136,6 +147,15 @@ def worst_lines(spec: CampaignSpec, folder: Path, rows: list[dict], mode: str) -
     return lines
 
 
+def infeasible_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """One markdown line per run and deputy that no attitude lets hold its slot."""
+    return [
+        f"- run {o['run']}, deputy {o['deputy']} ({o['controller']}): {o['note'] or '-'}"
+        for o in outcomes(rows, 0.0)
+        if not o["can_hold"]
+    ]
+
+
 def summary_lines(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
     """A few lines for the terminal: runs, failures and the success rate per controller."""
     failed = sum(not r["completed"] for r in rows)
@@ -166,7 +186,9 @@ def write_report(spec: CampaignSpec, folder: Path, rows: list[dict[str, Any]], m
         f"{c.seed}, {len(failed)} failed.  Success: the run completed and the deputy's "
         f"final along-track error is below {c.success_threshold:g} m.  Gain error: "
         "|K - K*| / |K*| of the gains flown at the end against the run's true optimal "
-        "gain.",
+        "gain, for LQR and learned gains (a learner that flies no learned gain at the end is "
+        "not learned and has none).  Learned: flies learned gains at the end.  Cannot hold "
+        "slot: no attitude within the deputy's limit matches the chief's drag.",
         "",
         *summary_lines(spec, rows)[1:],
         "",
@@ -181,6 +203,8 @@ def write_report(spec: CampaignSpec, folder: Path, rows: list[dict[str, Any]], m
         figures.append("scatter.png")
     lines += [f"![{f}]({f})" for f in figures] + ["", "## Worst runs", ""]
     lines += worst_lines(spec, folder, rows, mode)
+    if infeasible := infeasible_lines(rows):
+        lines += ["", "## Deputies that cannot hold their slot", "", *infeasible]
     if failed:
         lines += ["", "## Failed runs", ""]
         lines += [f"- run {r['run']}: {r['error']}" for r in failed]

@@ -20,32 +20,38 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from services.config import (
     Deployment,
     controller_label,
     deployment_from_table,
     write_deployment,
 )
-from services.model import orbit_period, true_lqr_gains
+from services.ground.scoring import deputy_metrics, holding_notes, inprocess_outcome
 
 MODES = ("inprocess", "distributed")
-ROWS_VERSION = 2
+ROWS_VERSION = 3
 """What a row means beyond its campaign file: raised when the same task gives another row (a
-deputy's noise drawn another way, its controller labelled another way), so that ``--resume``
-does not mix the two in one table."""
-METRICS = (
-    "controller",
-    "final_error_m",
-    "last_orbit_max_error_m",
-    "gain_error",
-    "learned_at_orbits",
-)
-"""Each deputy's columns, ``<deputy>.<metric>``: its controller, |y - y_ref| at the end and its
-largest value over the last orbit (m), |K - K*| / |K*| of the gains it flies at the end against
-the run's true optimal gain K* (``services.model.true_lqr_gains``), and the orbit it first
-switched to learned gains at (empty: never)."""
+deputy's noise drawn another way, its controller labelled another way, a deputy scored another
+way), so that ``--resume`` does not mix the two in one table."""
+COLUMNS = {
+    "final_error_m": "final_along_track_error_m",
+    "last_orbit_max_error_m": "max_along_track_error_last_orbit_m",
+    "gain_error": "gain_error",
+    "learned_at_orbits": "learned_at_orbits",
+    "learned": "learned",
+    "gain_error_vs_lqr": "gain_error_vs_lqr",
+    "can_hold": "can_hold",
+    "note": "note",
+}
+"""A campaign column -> the metric of ``services.ground.scoring.deputy_metrics`` it holds."""
+METRICS = ("controller", *COLUMNS)
+"""Each deputy's columns, ``<deputy>.<metric>``: its controller, then its metrics
+(``services.ground.scoring``): |y - y_ref| at the end and its largest value over the last
+orbit (m), |K - K*| / |K*| of the gains it flies at the end against the run's true optimal gain
+K* (``services.model.true_lqr_gains``; NULL for a learner that flies no learned gain), the orbit
+it first switched to learned gains at (NULL: never), whether it flies learned gains at the end
+(NULL for LQR), the gain error against the nominal LQR gain, whether some attitude lets it hold
+its slot, and a note (why it cannot, why it flies no learned gain)."""
 
 
 def deputy_columns(names: list[str]) -> list[str]:
@@ -53,15 +59,11 @@ def deputy_columns(names: list[str]) -> list[str]:
     return [f"{name}.{m}" for name in names for m in METRICS]
 
 
-def _gain_error(dep: Deployment, name: str, K: Any) -> float | None:
-    """|K - K*| / |K*| against the run's true optimal gain (None without K)."""
-    if K is None:
-        return None
-    K_star = true_lqr_gains(dep, dep.deputy_named(name))[0]
-    K = np.asarray(K, float)
-    if K.shape != K_star.shape:
-        return None
-    return float(np.linalg.norm(K - K_star) / np.linalg.norm(K_star))
+def _columns(name: str, label: str, metrics: dict[str, Any]) -> dict[str, Any]:
+    """A deputy's metrics as its campaign columns."""
+    row = {f"{name}.controller": label}
+    row.update({f"{name}.{col}": metrics[key] for col, key in COLUMNS.items()})
+    return row
 
 
 def inprocess_metrics(dep: Deployment) -> dict[str, Any]:
@@ -70,29 +72,19 @@ def inprocess_metrics(dep: Deployment) -> dict[str, Any]:
     from services.flight.inprocess import run_in_process
 
     out = run_in_process(dep)
-    period = orbit_period(dep)
+    cannot_hold = holding_notes(dep)
     row: dict[str, Any] = {}
     for d in dep.deputy:
-        rec = out[d.name]
-        c = rec["controller"]
-        ey = np.abs(rec["x"][:, 1] - d.y_ref)  # the true state in the navigation frame
-        last = rec["t"] >= rec["t"][-1] - period
-        row.update(
-            {
-                f"{d.name}.controller": d.label,
-                f"{d.name}.final_error_m": float(ey[-1]),
-                f"{d.name}.last_orbit_max_error_m": float(ey[last].max()),
-                f"{d.name}.gain_error": _gain_error(dep, d.name, c.K),
-                f"{d.name}.learned_at_orbits": c.learned_at[0] / period if c.learned_at else None,
-            }
-        )
+        outcome = inprocess_outcome(d, out[d.name])
+        metrics = deputy_metrics(dep, d, outcome, cannot_hold=cannot_hold.get(d.name, ""))
+        row.update(_columns(d.name, d.label, metrics))
     return row
 
 
 def distributed_metrics(dep: Deployment, table: dict, folder: Path) -> dict[str, Any]:
     """Run the mission as ``ddvi run`` (processes on Zenoh) with its run under ``folder``;
-    each deputy's metrics from the run's summary.json.  RuntimeError when the run made no
-    summary or did not complete."""
+    each deputy's metrics from the run's summary.json (scored by its report).  RuntimeError
+    when the run made no summary or did not complete."""
     path = write_deployment(table, folder, "deployment")
     cmd = [sys.executable, "-m", "services.cli", "run", str(path), "--quiet"]
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -105,16 +97,9 @@ def distributed_metrics(dep: Deployment, table: dict, folder: Path) -> dict[str,
     summary = json.loads(found[-1].read_text())
     row: dict[str, Any] = {}
     for name, d in summary["deputies"].items():
-        gains = d.get("gains") or d.get("lqr_gains") or {}
-        row.update(
-            {
-                f"{name}.controller": controller_label(d["controller"], d.get("learning_method")),
-                f"{name}.final_error_m": d["final_along_track_error_m"],
-                f"{name}.last_orbit_max_error_m": d["max_along_track_error_last_orbit_m"],
-                f"{name}.gain_error": _gain_error(dep, name, gains.get("K")),
-                f"{name}.learned_at_orbits": d["learned_at_orbits"],
-            }
-        )
+        metrics = {**d, "gain_error": d["gain_error_vs_true_optimum"]}
+        label = controller_label(d["controller"], d.get("learning_method"))
+        row.update(_columns(name, label, metrics))
     if not summary.get("completed"):
         raise _IncompleteError(row, f"ddvi run did not complete (exit {done.returncode})")
     return row

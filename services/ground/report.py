@@ -31,7 +31,16 @@ from numpy.typing import NDArray
 from services.ground.figures import FIGURES, write_figures
 from services.ground.outcome import outcome, outcome_lines
 from services.ground.rundata import CraftData, DeputySeries, FloatArray, GainRecord, RunData
-from services.model import lqr_gains, true_lqr_gains
+from services.ground.scoring import (
+    NOT_LEARNED,
+    DeputyOutcome,
+    deputy_metrics,
+    holding_notes,
+    reference_gains,
+    table_cell,
+)
+from services.interface.topics import log_topic
+from services.model import lqr_gains
 
 log = logging.getLogger("ddvi.report")
 
@@ -59,62 +68,57 @@ def _switches(gains: list[GainRecord], source: str, period: float) -> list[float
     ]
 
 
-NOT_LEARNED = ("lqr", "initial", "fallback")
-"""Gain sources that are not learned: the nominal LQR gain, K0 while exploring, the old gains
-a failed re-learning fell back to.  Any other source is a learner's."""
-
 REFERENCE = "the optimal gain K* of the truth's linear model (its density, facet area and factors)"
 
 
-def relative_gain_error(K: FloatArray, K_ref: FloatArray | None) -> float | None:
-    """|K - K_ref| / |K_ref| (Frobenius norms); None without a reference or with a shape or
-    zero reference that makes no sense of it."""
-    if K_ref is None:
-        return None
-    den = float(np.linalg.norm(K_ref))
-    if den == 0.0 or K.shape != K_ref.shape:
-        return None
-    return float(np.linalg.norm(K - K_ref) / den)
-
-
-def _learned_switches(gains: list[GainRecord], period: float) -> list[float]:
-    """When (orbits) the gains switched to learned ones from others, in order."""
+def _learned_switches(gains: list[GainRecord]) -> list[float]:
+    """When (s) the gains switched to learned ones from others, in order."""
     return [
-        r.t / period
+        r.t
         for k, r in enumerate(gains)
         if r.source not in NOT_LEARNED and (k == 0 or gains[k - 1].source != r.source)
     ]
 
 
-def reference_gains(dep: Any, deputy: Any) -> tuple[FloatArray | None, FloatArray | None]:
-    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run, or (None,
-    None) when it has none (no drag in the truth, or no stabilising solution)."""
-    try:
-        K, L = true_lqr_gains(dep, deputy)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
-        return None, None
-    return np.asarray(K), np.asarray(L)
-
-
-def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
+def _deputy_summary(
+    data: RunData, s: DeputySeries, completed: bool, cannot_hold: str
+) -> dict[str, Any]:
     d = s.deputy
     craft = data.craft.get(d.name, CraftData())
+    last_gains = craft.gains[-1] if craft.gains else None
+    outcome = DeputyOutcome(
+        t=s.t,
+        along_track_error=np.abs(s.hill[:, 1] - d.y_ref),
+        K=None if last_gains is None else np.asarray(last_gains.K),
+        source=None if last_gains is None else last_gains.source,
+        # every switch to learned gains: the first learning, then each re-learning (or, for a
+        # restarted controller, its learning from scratch)
+        learned_at=_learned_switches(craft.gains),
+        log=[text] if (text := data.last_log.get(log_topic(f"ctrl-{d.name}"))) else [],
+        completed=completed,
+    )
+    m = deputy_metrics(
+        data.dep, d, outcome, K_true=s.K_true, K_lqr=s.K_lqr, cannot_hold=cannot_hold
+    )
     out: dict[str, Any] = {
         "controller": d.controller,
         # a learner's learning.method (None for LQR)
         "learning_method": None if d.controller == "lqr" else getattr(d.learning, "method", None),
         "y_ref": d.y_ref,
         "samples": len(s.t),
-        "final_along_track_error_m": None,
-        "max_along_track_error_last_orbit_m": None,
+        "final_along_track_error_m": m["final_along_track_error_m"],
+        "max_along_track_error_last_orbit_m": m["max_along_track_error_last_orbit_m"],
         "max_radial_last_orbit_m": None,
         "final_radial_m": None,
-        "gain_error_vs_true_optimum": None,
-        "gain_error_vs_lqr": None,
-        "learned_at_orbits": None,
+        # services.ground.scoring: None unless an LQR gain or a learned one is flown at the end
+        "gain_error_vs_true_optimum": m["gain_error"],
+        "gain_error_vs_lqr": m["gain_error_vs_lqr"],
+        "learned": m["learned"],
+        "learned_at_orbits": m["learned_at_orbits"],
         "relearned_at_orbits": [],
         "relearning_abandoned_at_orbits": [],
+        "can_hold": m["can_hold"],
+        "note": m["note"],
         "gains": None,
         "lqr_gains": {"K": s.K_lqr.tolist(), "L": s.L_lqr.tolist()},
         "true_optimal_gains": None
@@ -123,29 +127,14 @@ def _deputy_summary(data: RunData, s: DeputySeries) -> dict[str, Any]:
         "phase": craft.status[-1].body["phase"] if craft.status else None,
     }
     if len(s.t):
-        ey = np.abs(s.hill[:, 1] - d.y_ref)
         ax = np.abs(s.hill[:, 0])
         last = _last_orbit(s.t, data.period)
-        out.update(
-            final_along_track_error_m=float(ey[-1]),
-            max_along_track_error_last_orbit_m=float(ey[last].max()),
-            max_radial_last_orbit_m=float(ax[last].max()),
-            final_radial_m=float(ax[-1]),
-        )
-    if craft.gains:
-        g = craft.gains[-1]
-        out["gains"] = {"K": g.K, "L": g.L, "source": g.source}
-        # the gain flown at the end against the truth's optimum, for every controller (the
-        # LQR deputy's is how wrong the nominal model is)
-        out["gain_error_vs_true_optimum"] = relative_gain_error(np.asarray(g.K), s.K_true)
+        out.update(max_radial_last_orbit_m=float(ax[last].max()), final_radial_m=float(ax[-1]))
+    if last_gains is not None:
+        out["gains"] = {"K": last_gains.K, "L": last_gains.L, "source": last_gains.source}
         if d.controller != "lqr":
-            out["gain_error_vs_lqr"] = relative_gain_error(np.asarray(g.K), s.K_lqr)
-            # every switch to learned gains: the first learning, then each re-learning (or,
-            # for a restarted controller, its learning from scratch)
-            switches = _learned_switches(craft.gains, data.period)
-            if switches:
-                out["learned_at_orbits"] = switches[0]
-                out["relearned_at_orbits"] = switches[1:]
+            switches = _learned_switches(craft.gains)[1:]
+            out["relearned_at_orbits"] = [t / data.period for t in switches]
             # every return to the old gains after re-learning failed (Controller.learning_failed)
             out["relearning_abandoned_at_orbits"] = _switches(craft.gains, "fallback", data.period)
     return out
@@ -253,6 +242,13 @@ def _num(v: Any, fmt: str = ".3g") -> str:
     return "-" if v is None else format(v, fmt)
 
 
+def _gain_cell(d: dict[str, Any], key: str) -> str:
+    """A gain error of a deputy's summary as the table prints it ("not learned" for a learner
+    that flies no learned gain)."""
+    value = table_cell("gain_error", {"gain_error": d.get(key), "learned": d.get("learned")})
+    return value if isinstance(value, str) else _num(value)
+
+
 def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> None:
     lines = [
         f"# Run {summary['run']}",
@@ -265,8 +261,8 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
         "",
         "| deputy | controller | final abs(y - y_ref) [m] | max last orbit [m] | final abs(x) [m] "
         "| max abs(x) last orbit [m] | gain error | gain error vs nominal LQR "
-        "| learned at [orbits] | phase |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| learned at [orbits] | phase | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, d in summary["deputies"].items():
         learned = [d["learned_at_orbits"], *d.get("relearned_at_orbits", [])]
@@ -276,15 +272,19 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
             f"| {name} | {d['controller']} | {_num(d['final_along_track_error_m'])} "
             f"| {_num(d['max_along_track_error_last_orbit_m'])} | {_num(d['final_radial_m'])} "
             f"| {_num(d['max_radial_last_orbit_m'])} "
-            f"| {_num(d.get('gain_error_vs_true_optimum'))} | {_num(d['gain_error_vs_lqr'])} "
+            f"| {_gain_cell(d, 'gain_error_vs_true_optimum')} "
+            f"| {_gain_cell(d, 'gain_error_vs_lqr')} "
             f"| {', '.join([*(_num(t, '.2f') for t in learned), *gave_up])} "
-            f"| {d['phase'] or '-'} |"
+            f"| {d['phase'] or '-'} | {(d.get('note') or '-').replace('|', '/')} |"
         )
     lines += [
         "",
         f"Gain error: |K - K*| / |K*| of the gain flown at the end against {REFERENCE}; "
         "vs nominal LQR: against the LQR gain of the nominal model (the two agree when the "
-        "truth is nominal).",
+        "truth is nominal).  Scored for an LQR deputy and a learned gain only: a learner that "
+        "flies no learned gain at the end (K0, or old gains a failed re-learning fell back "
+        "to) is not learned.  Note: why a deputy cannot hold its slot, why a learner flies no "
+        "learned gain.",
     ]
     m = summary["messages"]
     tot = m["totals"]
@@ -329,21 +329,26 @@ def write_report(
     except Exception:
         log.exception("could not draw the figures")
         figures = []
+    # completed: the monitor saw the final clock at the planned end (an early final clock,
+    # a re-entry say, is a run that ended, not a mission that completed)
+    completed = completed and data.sim_t >= data.duration - 1e-6
+    cannot_hold = holding_notes(data.dep)
     wall = 0.0
     if data.first_ns is not None and data.last_ns is not None:
         wall = (data.last_ns - data.first_ns) / 1e9
     summary: dict[str, Any] = {
         "run": data.run,
         "deployment": data.dep.path,
-        # completed: the monitor saw the final clock at the planned end (an early final clock,
-        # a re-entry say, is a run that ended, not a mission that completed)
-        "completed": completed and data.sim_t >= data.duration - 1e-6,
+        "completed": completed,
         "sim_time_s": data.sim_t,
         "orbits": data.sim_t / data.period,
         "planned_sim_time_s": data.duration,
         "wall_s": wall,
         "csv_rows": rows,
-        "deputies": {s.deputy.name: _deputy_summary(data, s) for s in series},
+        "deputies": {
+            s.deputy.name: _deputy_summary(data, s, completed, cannot_hold.get(s.deputy.name, ""))
+            for s in series
+        },
         "messages": _message_summary(data, monitor_counters),
         "outcome": _outcome(data, monitor_counters),
         "figures": figures,

@@ -119,6 +119,7 @@ class RunData:
         self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
         self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
+        self.last_log: dict[str, str] = {}  # log topic -> the last line logged on it
         self.counts: dict[str, int] = {}  # decoded messages by schema
         self.first_ns: int | None = None
         self.last_ns: int | None = None
@@ -165,6 +166,8 @@ class RunData:
             self.sc(b["sc"]).status.append(StatusRecord(msg.t, dict(b)))
         elif msg.schema == "stats":
             self._stats(msg.t, b["service"], dict(b["counters"]))
+        elif msg.schema == "log" and b["text"]:
+            self.last_log[topic] = b["text"]
         notable = msg.schema == "fault" or (
             msg.schema == "log" and b["level"] in ("warning", "error", "critical")
         )

@@ -49,7 +49,12 @@ from services.config import (
     resolve,
     write_deployment,
 )
-from services.ground.report import NOT_LEARNED, reference_gains, relative_gain_error
+from services.ground.scoring import (
+    deputy_metrics,
+    failed_metrics,
+    holding_notes,
+    inprocess_outcome,
+)
 from services.ground.sweep_table import (
     POINT,
     SUCCESS,
@@ -60,10 +65,12 @@ from services.ground.sweep_table import (
     write_table,
 )
 from services.interface import topics
+from services.model import holding_problems
 
 __all__ = [
     "VELOCITY_NOISE_RATIO",
     "impaired_table",
+    "infeasible_points",
     "inprocess_rows",
     "largest_learning_value",
     "noisy_table",
@@ -73,8 +80,6 @@ __all__ = [
 
 VELOCITY_NOISE_RATIO = 1e-3
 """(m/s) of navigation velocity noise per m of position noise in a noise sweep."""
-
-NOTE_LENGTH = 160  # characters of a learner's last log line kept in the table
 
 
 def impaired_table(table: dict[str, Any], kind: str, value: float) -> dict[str, Any]:
@@ -112,39 +117,20 @@ def noisy_table(
     return out
 
 
-def _note(text: str) -> str:
-    """A log line as a table note: at most ``NOTE_LENGTH`` characters, cut at a word."""
-    if len(text) <= NOTE_LENGTH:
-        return text
-    return text[:NOTE_LENGTH].rsplit(" ", 1)[0] + " ..."
-
-
 def _row(point: dict[str, Any], deputy: str, controller: str, **results: Any) -> dict[str, Any]:
-    """A row of the table: the point, the deputy, and its results (None where not given)."""
-    row = dict.fromkeys(["final_along_track_error_m", "max_along_track_error_last_orbit_m",
-                         "learned", "learned_at_orbits", "gain_error", "gain_error_vs_lqr",
-                         "note"])  # fmt: skip
-    return {**point, "deputy": deputy, "controller": controller, **row, **results}
-
-
-def _last_warning(summary: dict[str, Any], name: str) -> str | None:
-    """The last warning or error deputy ``name``'s controller logged in a run's summary."""
-    texts = [e.get("text") for e in summary.get("events", []) if e.get("src") == f"ctrl-{name}"]
-    texts = [t for t in texts if t]
-    return _note(texts[-1]) if texts else None
+    """A row of the table: the point, the deputy, its metrics (``services.ground.scoring``)
+    and any link counters."""
+    return {**point, "deputy": deputy, "controller": controller, **results}
 
 
 def summary_rows(point: dict[str, Any], summary: dict[str, Any]) -> list[dict[str, Any]]:
-    """One row per deputy of a launched run's summary.json."""
+    """One row per deputy of a launched run's summary.json: the metrics its report scored
+    (``services.ground.scoring.deputy_metrics``) and the link counters."""
     services = summary["messages"]["services"]
     env = services.get("environment", {})
     rows = []
     for name, d in summary["deputies"].items():
         ctrl = services.get(f"ctrl-{name}", {})
-        gains = d.get("gains") or {}
-        lqr = d["controller"] == "lqr"
-        # flying gains it learned (not K0, and not old gains a failed re-learning fell back to)
-        learned = d["phase"] == "learned" and gains.get("source") not in NOT_LEARNED
         rows.append(
             _row(
                 point,
@@ -153,11 +139,12 @@ def summary_rows(point: dict[str, Any], summary: dict[str, Any]) -> list[dict[st
                 completed=summary["completed"],
                 final_along_track_error_m=d["final_along_track_error_m"],
                 max_along_track_error_last_orbit_m=d["max_along_track_error_last_orbit_m"],
-                learned=None if lqr else learned,
+                learned=d["learned"],
                 learned_at_orbits=d["learned_at_orbits"],
-                gain_error=d.get("gain_error_vs_true_optimum") if lqr or learned else None,
-                gain_error_vs_lqr=d["gain_error_vs_lqr"] if learned else None,
-                note=None if lqr or learned else _last_warning(summary, name),
+                gain_error=d["gain_error_vs_true_optimum"],
+                gain_error_vs_lqr=d["gain_error_vs_lqr"],
+                can_hold=d["can_hold"],
+                note=d["note"],
                 dropped=ctrl.get("dropped", 0) + env.get("dropped", 0),
                 delayed=ctrl.get("delayed", 0) + env.get("delayed", 0),
                 late=env.get("late_commands", 0),
@@ -171,45 +158,47 @@ def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any
     """Run ``dep`` with ``run_in_process`` (navigation noise seeded with run.seed); one row
     per deputy.  A run the truth ends early (a re-entry) gives rows with completed = False
     and the reason as the note."""
-    import numpy as np
-
     from services.flight.inprocess import run_in_process
-    from services.model import ReentryError, lqr_gains, orbit_period
+    from services.model import ReentryError
 
+    cannot_hold = holding_notes(dep)
     try:
         out = run_in_process(dep)
     except ReentryError as exc:
-        why = _note(str(exc))
-        return [_row(point, d.name, d.label, completed=False, note=why) for d in dep.deputy]
-    period = orbit_period(dep)
-    rows = []
-    for d in dep.deputy:
-        rec, lqr = out[d.name], d.controller == "lqr"
-        c = rec["controller"]
-        t, x = np.asarray(rec["t"]), np.asarray(rec["x"])
-        ey = np.abs(x[:, 1] - d.y_ref)
-        learned = c.phase == "learned" and c.source not in NOT_LEARNED
-        K = np.asarray(c.K)
-        learned_at = getattr(c, "learned_at", [])
-        scored = lqr or learned  # LQR's gain, or a learned one; not K0 while exploring
-        K_true, K_lqr = reference_gains(dep, d)[0], np.asarray(lqr_gains(dep, d)[0])
-        note = _note(rec["log"][-1]) if rec["log"] else "no learning attempt"
-        rows.append(
-            _row(
-                point,
-                d.name,
-                d.label,
-                completed=True,
-                final_along_track_error_m=float(ey[-1]),
-                max_along_track_error_last_orbit_m=float(ey[t >= t[-1] - period].max()),
-                learned=None if lqr else learned,
-                learned_at_orbits=learned_at[0] / period if learned_at else None,
-                gain_error=relative_gain_error(K, K_true) if scored else None,
-                gain_error_vs_lqr=relative_gain_error(K, K_lqr) if learned else None,
-                note=None if scored else note,
-            )
+        return [
+            _row(point, d.name, d.label, **failed_metrics(d, str(exc), cannot_hold.get(d.name, "")))
+            for d in dep.deputy
+        ]
+    return [
+        _row(
+            point,
+            d.name,
+            d.label,
+            **deputy_metrics(
+                dep,
+                d,
+                inprocess_outcome(d, out[d.name]),
+                cannot_hold=cannot_hold.get(d.name, ""),
+            ),
         )
-    return rows
+        for d in dep.deputy
+    ]
+
+
+def infeasible_points(
+    runs: list[tuple[dict[str, Any], dict[str, Any], str]],
+) -> list[tuple[dict[str, Any], str]]:
+    """(point, why) of every deputy of the sweep's runs that cannot hold its slot, in run
+    order (``services.model.holding_problems``)."""
+    return [
+        (point, text)
+        for point, table, _ in runs
+        for _, text in holding_problems(deployment_from_table(table))
+    ]
+
+
+def _point_text(point: dict[str, Any]) -> str:
+    return ", ".join(f"{k} = {v:g}" for k, v in point.items())
 
 
 def _orbits_per_mismatch(orbits: list[float] | None, mismatches: list[float]) -> list:
@@ -293,11 +282,13 @@ def sweep(
     base = load_deployment(str(resolve(deployment)))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     folder = Path(output or base.run.output) / f"sweep-{kind}-{base.run.name}-{stamp}"
+    # up front: which points fly a deputy that no attitude lets hold its slot
+    for point, why in infeasible_points(runs):
+        print(f"ddvi sweep: {_point_text(point)}: warning: {why}", file=sys.stderr, flush=True)
     rows: list[dict[str, Any]] = []
     for point, table, stem in runs:
         path = write_deployment(table, folder / "deployments", stem)
-        text = ", ".join(f"{k} = {v:g}" for k, v in point.items())
-        print(f"ddvi sweep: {text} ...", file=sys.stderr, flush=True)
+        print(f"ddvi sweep: {_point_text(point)} ...", file=sys.stderr, flush=True)
         if in_process:
             rows.extend(inprocess_rows(point, load_deployment(str(path))))
         elif (summary := _launch(path, folder, quiet)) is not None:

@@ -4,7 +4,9 @@ learning in it.  ``services.ground.sweep`` runs the missions and makes the rows:
 
 Every gain error is |K - K*| / |K*| against K*, the optimal gain of the truth's linear model
 of that run (``services.model.true_lqr_gains``), with the error against the nominal model's
-LQR gain in its own column.
+LQR gain in its own column; each row's metrics are ``services.ground.scoring.deputy_metrics``'
+(in the CSV a learner that flies no learned gain has empty gain errors and learned false; in
+the markdown table "not learned").
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 from typing import Any
+
+from services.ground.scoring import table_cell
 
 UNITS = {"delay": "s", "loss": "probability", "noise": "m"}
 """Sweep kind -> the unit of its swept value."""
@@ -24,6 +28,7 @@ RESULTS = [
     "deputy",
     "controller",
     "completed",
+    "can_hold",
     "final_along_track_error_m",
     "max_along_track_error_last_orbit_m",
     "learned",
@@ -39,6 +44,7 @@ HEADERS = {
     "deputy": "deputy",
     "controller": "controller",
     "completed": "completed",
+    "can_hold": "can hold slot",
     "final_along_track_error_m": "final along-track error (m)",
     "max_along_track_error_last_orbit_m": "last-orbit max (m)",
     "learned": "learned",
@@ -58,8 +64,8 @@ NOTES = {
     "(a learning attempt longer than run.command_deadline also makes them).",
     "noise": "nav noise: each deputy's navigation.position_noise (m, 1 sigma per axis), "
     "velocity_noise = {ratio:g} (m/s)/m times it; mismatch f: the truth's density_factor and "
-    "every deputy's area_factor f times the deployment's; note: why a learner flies no "
-    "learned gain (its last learning log line).",
+    "every deputy's area_factor f times the deployment's; note: why a deputy cannot hold its "
+    "slot, and why a learner flies no learned gain (its controller's last log line).",
 }
 
 
@@ -109,15 +115,17 @@ def markdown_table(kind: str, rows: list[dict[str, Any]], velocity_ratio: float 
     cols = columns(kind)
     head = [HEADERS.get(c, f"{kind} ({UNITS[kind]})") for c in cols]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |" for r in rows]
+    lines += ["| " + " | ".join(_fmt(table_cell(c, r)) for c in cols) + " |" for r in rows]
     note = NOTES["noise"].format(ratio=velocity_ratio) if kind == "noise" else NOTES["links"]
     lines += [
         "",
         "learned: the controller flies gains it learned (not K0, not old gains a failed "
         "re-learning fell back to); gain error: |K - K*| / |K*| of the gain flown at the end "
-        "(LQR's and learned ones) against K*, the optimal gain of the truth's linear model of "
-        "that run (its density, facet area and factors); vs nominal LQR: against the nominal "
-        "model's LQR gain; along-track error: |y - y_ref|. " + note,
+        "(LQR's and learned ones; a learner that flies none is not learned) against K*, the "
+        "optimal gain of the truth's linear model of that run (its density, facet area and "
+        "factors); vs nominal LQR: against the nominal model's LQR gain; along-track error: "
+        "|y - y_ref|; can hold slot: some attitude within the deputy's limit matches the "
+        "chief's drag. " + note,
     ]
     return "\n".join(lines) + "\n"
 

@@ -221,14 +221,23 @@ def describe_panel(area_factor: float | None, normal_angle: float | None) -> str
 
 def holding_warnings(dep: Deployment) -> list[str]:
     """Why a deputy of ``dep`` cannot hold its slot, one sentence each (empty: every deputy
-    can): a deputy whose :func:`holding_margin` is below zero by design, then, in time order,
-    one that falls below zero after a panel fault (panel faults of a deputy add up: a later
-    fault changes only what it gives).  Warnings, not errors: such a mission still flies, its
-    along-track error growing."""
-    warnings = [
-        f"deputy {d.name!r} cannot hold a slot: its largest drag (area factor "
-        f"{d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is {-margin:.0%} below the "
-        "chief's, so its along-track error will grow"
+    can): the sentences of :func:`holding_problems`."""
+    return [text for _, text in holding_problems(dep)]
+
+
+def holding_problems(dep: Deployment) -> list[tuple[str, str]]:
+    """(deputy name, why it cannot hold its slot) of every deputy of ``dep`` that cannot
+    (empty: every deputy can): a deputy whose :func:`holding_margin` is below zero by design,
+    then, in time order, one that falls below zero after a panel fault (panel faults of a
+    deputy add up: a later fault changes only what it gives).  Warnings, not errors: such a
+    mission still flies, its along-track error growing."""
+    problems = [
+        (
+            d.name,
+            f"deputy {d.name!r} cannot hold a slot: its largest drag (area factor "
+            f"{d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is {-margin:.0%} below the "
+            "chief's, so its along-track error will grow",
+        )
         for d in dep.deputy
         if (margin := holding_margin(dep, d)) < 0
     ]
@@ -239,9 +248,12 @@ def holding_warnings(dep: Deployment) -> list[str]:
         angle = new_angle if new_angle is not None else angle
         panel[sc] = factor, angle
         if holding_margin(dep, dep.deputy_named(sc), factor, angle) < 0:
-            warnings.append(
-                f"after its panel fault at orbit {t / orbit_period(dep):g} deputy {sc!r} "
-                "cannot hold a slot: no attitude within its limit makes its drag match the "
-                "chief's"
+            problems.append(
+                (
+                    sc,
+                    f"after its panel fault at orbit {t / orbit_period(dep):g} deputy {sc!r} "
+                    "cannot hold a slot: no attitude within its limit makes its drag match the "
+                    "chief's",
+                )
             )
-    return warnings
+    return problems

@@ -136,7 +136,10 @@ def _row(s, i: int, final: float | None, completed: bool = True) -> dict:
     for name, ctrl in (("lqr", "lqr"), ("ddvi", "ddvi value-iteration")):
         row |= {f"{name}.controller": ctrl, f"{name}.final_error_m": final,
                 f"{name}.last_orbit_max_error_m": final, f"{name}.gain_error": 0.01,
-                f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None}  # fmt: skip
+                f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None,
+                f"{name}.learned": True if name == "ddvi" else None,
+                f"{name}.gain_error_vs_lqr": 0.01 if name == "ddvi" else None,
+                f"{name}.can_hold": True, f"{name}.note": None}  # fmt: skip
     return row | values
 
 
@@ -224,3 +227,37 @@ def test_a_campaign_tells_the_learners_apart() -> None:
     assert labels == ["lqr", "ddvi value-iteration", "ddvi model-fit"]
     groups = {o["controller"] for o in outcomes([row], s.campaign.success_threshold)}
     assert groups == set(labels)
+
+
+def test_a_campaign_says_up_front_which_deputies_cannot_hold_their_slot(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A base deployment no attitude can hold is said once; else each drawn run that cannot,
+    before it runs."""
+    from services.ground import campaign
+
+    table = copy.deepcopy(CAMPAIGN)
+    table["dispersion"].append({"key": "deputy[0].area_factor", "distribution": "choice",
+                                "values": [1.0, 0.5]})  # fmt: skip
+    s = spec(table)
+    tasks = {i: campaign.task(s, i, "inprocess") for i in range(6)}
+    halved = [i for i, t in tasks.items() if t["values"]["deputy[0].area_factor"] == 0.5]
+    lines = campaign.holding_lines(s, tasks)
+    assert [int(x.split(":")[0].removeprefix("run ")) for x in lines] == halved and halved
+    assert all("deputy 'lqr' cannot hold a slot" in x for x in lines)
+    s_base = spec()
+    s_base.base["deputy"][0]["area_factor"] = 0.5  # every run's
+    tasks = {i: campaign.task(s_base, i, "inprocess") for i in range(6)}
+    (line,) = campaign.holding_lines(s_base, tasks)
+    assert line.startswith("the base deployment: deputy 'lqr' cannot hold a slot")
+
+    said = []
+
+    def execute(t):  # what was said before the run ran
+        said.append(capsys.readouterr().err)
+        return {"run": t["run"], "seed": t["seed"], "completed": True, "error": None}, {
+            "run": t["run"], "wall_s": 0.0, "worker": "w"}  # fmt: skip
+
+    monkeypatch.setattr(campaign, "execute", execute)
+    assert campaign.only_run(s, tmp_path, halved[0], "inprocess") == 0
+    assert said == [f"ddvi campaign: warning: {lines[0]}\n"]

@@ -18,7 +18,6 @@ from services.ground.sweep import (
     impaired_table,
     largest_learning_value,
     noisy_table,
-    summary_rows,
     sweep,
     sweep_points,
 )
@@ -91,23 +90,40 @@ def test_delay_sweep_runs_each_value(tmp_path: Path) -> None:
     assert "| delay (s) |" in (folder / "sweep.md").read_text()
 
 
-def test_a_fallback_to_old_gains_is_not_learning() -> None:
-    """A deputy whose re-learning fell back to its old gains is flying learned gains, but not
-    ones learned for the plant it has: the sweep does not count it as learned."""
-    deputy = {
-        "controller": "ddvi", "phase": "learned", "final_along_track_error_m": 673.0,
-        "max_along_track_error_last_orbit_m": 3363.0, "learned_at_orbits": 15.0,
-        "gain_error_vs_lqr": 0.003, "gain_error_vs_true_optimum": 0.002,
-        "gains": {"source": "fallback"},
-    }  # fmt: skip
-    summary = {"completed": True, "messages": {"services": {}}, "deputies": {"ddvi": deputy}}
-    (row,) = summary_rows({"value": 0.0}, summary)
-    assert row["learned"] is False and row["gain_error"] is None
-    assert row["gain_error_vs_lqr"] is None
-    deputy["gains"] = {"source": "ddvi"}
-    (row,) = summary_rows({"value": 0.0}, summary)
-    assert row["learned"] is True and row["gain_error"] == 0.002
-    assert row["gain_error_vs_lqr"] == 0.003
+@pytest.mark.integration  # flies a two-orbit mission
+def test_a_point_no_attitude_can_hold_is_stated_before_its_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """At 0.7 x the nominal area no attitude within |sigma3| <= 0.2 matches the chief's drag:
+    the sweep says so before it flies that point, and marks every deputy's row."""
+    import services.flight.inprocess as inprocess
+
+    fly, before_run = inprocess.run_in_process, []
+
+    def spy(dep, timing=None):
+        before_run.append(capsys.readouterr().err)  # what was said before the mission flew
+        return fly(dep, timing)
+
+    monkeypatch.setattr(inprocess, "run_in_process", spy)
+    deployment = str(Path(__file__).parents[2] / "deployments" / "realistic-nav.toml")
+    argv = ["sweep", "noise", deployment, "--values", "1", "--mismatch", "0.7", "--orbits", "2",
+            "--in-process", "--output", str(tmp_path)]  # fmt: skip
+    main(argv)
+    (said,) = before_run
+    names = [d["name"] for d in read_table("realistic-nav")["deputy"]]
+    for name in names:
+        assert (
+            f"ddvi sweep: noise = 1, mismatch = 0.7: warning: deputy {name!r} cannot hold a slot"
+            in said
+        )
+    out = capsys.readouterr().out
+    folder = Path(out.strip().splitlines()[-1])
+    rows = list(csv.DictReader((folder / "sweep.csv").read_text().splitlines()))
+    assert [r["deputy"] for r in rows] == names
+    for r in rows:
+        assert r["can_hold"] == "False"
+        assert r["note"].startswith(f"deputy {r['deputy']!r} cannot hold a slot")
+    assert "| can hold slot |" in out and out.count("| yes | no |") == len(names)
 
 
 def test_noisy_table_sets_noise_and_scales_the_truth_as_mismatch_2x_does() -> None:

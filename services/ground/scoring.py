@@ -1,0 +1,189 @@
+"""How one deputy of one run is scored: the one rule the run report, the sweeps and the
+campaigns share (:func:`deputy_metrics`).
+
+- along-track error |y - y_ref|: at the end, and its largest value over the last orbit (m);
+- learned (None for an LQR deputy): the gains flown at the end are ones the learner learned,
+  not K0 while it explores, nor the old gains a failed re-learning fell back to;
+- learned at: the orbit of its first switch to learned gains (None: never);
+- gain error |K - K*| / |K*| of the gain flown at the end against K*, the optimal gain of the
+  truth's linear model of that run (``services.model.true_lqr_gains``), and against the nominal
+  model's LQR gain: only for an LQR deputy's gain (against K* alone) and a learned gain.  A
+  learner that flies no learned gain at the end has none (None: "not learned"), whatever it
+  flies;
+- can hold: some attitude within its limit matches the chief's drag
+  (``services.model.holding_problems``); where none does the note says so;
+- note: why the deputy cannot hold its slot, and why a learner flies no learned gain (its
+  controller's last log line).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.config import Deployment, Deputy
+from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
+
+log = logging.getLogger("ddvi.scoring")
+
+FloatArray = NDArray[np.float64]
+
+NOT_LEARNED = ("lqr", "initial", "fallback")
+"""Gain sources that are not learned: the nominal LQR gain, K0 while exploring, the old gains
+a failed re-learning fell back to.  Any other source is a learner's."""
+
+NOT_LEARNED_TEXT = "not learned"
+"""What a table prints for the gain error of a learner that flies no learned gain."""
+
+METRICS = (
+    "completed",
+    "final_along_track_error_m",
+    "max_along_track_error_last_orbit_m",
+    "learned",
+    "learned_at_orbits",
+    "gain_error",
+    "gain_error_vs_lqr",
+    "can_hold",
+    "note",
+)
+"""The keys of :func:`deputy_metrics`, in table order."""
+
+NOTE_LENGTH = 160  # characters of a learner's last log line kept as a note
+
+
+@dataclass
+class DeputyOutcome:
+    """What one run produced for one deputy: sample times t (s) and |y - y_ref| at them (m),
+    the gain K (1, 4) flown at the end and its source (a ``gains`` message's), every switch to
+    learned gains (s), the learner's log lines, and whether the run completed."""
+
+    t: FloatArray
+    along_track_error: FloatArray
+    K: FloatArray | None
+    source: str | None
+    learned_at: Sequence[float] = ()
+    log: Sequence[str] = ()
+    completed: bool = True
+
+
+def relative_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
+    """|K - K_ref| / |K_ref| (Frobenius norms); None without K or a reference, or with a shape
+    or zero reference that makes no sense of it."""
+    if K is None or K_ref is None:
+        return None
+    K = np.asarray(K, float)
+    den = float(np.linalg.norm(K_ref))
+    if den == 0.0 or K.shape != K_ref.shape:
+        return None
+    return float(np.linalg.norm(K - K_ref) / den)
+
+
+def reference_gains(dep: Deployment, deputy: Deputy) -> tuple[FloatArray | None, FloatArray | None]:
+    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run, or (None,
+    None) when it has none (no drag in the truth, or no stabilising solution)."""
+    try:
+        K, L = true_lqr_gains(dep, deputy)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
+        return None, None
+    return np.asarray(K), np.asarray(L)
+
+
+def holding_notes(dep: Deployment) -> dict[str, str]:
+    """Deputy name -> why it cannot hold its slot (its warnings joined); deputies that can
+    are absent."""
+    out: dict[str, list[str]] = {}
+    for name, text in holding_problems(dep):
+        out.setdefault(name, []).append(text)
+    return {name: "; ".join(texts) for name, texts in out.items()}
+
+
+def short_note(text: str) -> str:
+    """A log line as a table note: at most ``NOTE_LENGTH`` characters, cut at a word."""
+    if len(text) <= NOTE_LENGTH:
+        return text
+    return text[:NOTE_LENGTH].rsplit(" ", 1)[0] + " ..."
+
+
+def deputy_metrics(
+    dep: Deployment,
+    deputy: Deputy,
+    outcome: DeputyOutcome,
+    *,
+    K_true: FloatArray | None = None,
+    K_lqr: FloatArray | None = None,
+    cannot_hold: str | None = None,
+) -> dict[str, Any]:
+    """The deputy's metrics (keys :data:`METRICS`; see the module's docstring).  ``K_true``,
+    ``K_lqr`` and ``cannot_hold`` (why it cannot hold its slot; "" when it can) are computed
+    from ``dep`` when not given."""
+    lqr = deputy.controller == "lqr"
+    period = orbit_period(dep)
+    learned = outcome.source is not None and outcome.source not in NOT_LEARNED
+    scored = lqr or learned
+    if scored and K_true is None:
+        K_true = reference_gains(dep, deputy)[0]
+    if learned and K_lqr is None:
+        K_lqr = np.asarray(lqr_gains(dep, deputy)[0])
+    if cannot_hold is None:
+        cannot_hold = holding_notes(dep).get(deputy.name, "")
+    ey = np.asarray(outcome.along_track_error, float)
+    t = np.asarray(outcome.t, float)
+    notes = [cannot_hold] if cannot_hold else []
+    if not scored:
+        notes.append(short_note(outcome.log[-1]) if outcome.log else "no learning attempt")
+    return {
+        "completed": bool(outcome.completed),
+        "final_along_track_error_m": float(ey[-1]) if len(ey) else None,
+        "max_along_track_error_last_orbit_m": float(ey[t >= t[-1] - period].max())
+        if len(ey)
+        else None,
+        "learned": None if lqr else learned,
+        "learned_at_orbits": None
+        if lqr or not outcome.learned_at
+        else float(outcome.learned_at[0] / period),
+        "gain_error": relative_gain_error(outcome.K, K_true) if scored else None,
+        "gain_error_vs_lqr": relative_gain_error(outcome.K, K_lqr) if learned else None,
+        "can_hold": not cannot_hold,
+        "note": "; ".join(notes) or None,
+    }
+
+
+def inprocess_outcome(deputy: Deputy, rec: dict[str, Any]) -> DeputyOutcome:
+    """One deputy's outcome from ``services.flight.inprocess.run_in_process``'s record of it
+    (along-track error of the true state in the navigation frame)."""
+    c = rec["controller"]
+    x = np.asarray(rec["x"])
+    return DeputyOutcome(
+        t=np.asarray(rec["t"]),
+        along_track_error=np.abs(x[:, 1] - deputy.y_ref),
+        K=np.asarray(c.K),
+        source=c.source,
+        learned_at=list(getattr(c, "learned_at", [])),
+        log=list(rec.get("log", [])),
+    )
+
+
+def failed_metrics(deputy: Deputy, why: str, cannot_hold: str = "") -> dict[str, Any]:
+    """The metrics of a deputy whose run ended before it could be scored (a re-entry, say)."""
+    out: dict[str, Any] = dict.fromkeys(METRICS)
+    notes = [cannot_hold] if cannot_hold else []
+    out.update(
+        completed=False,
+        can_hold=not cannot_hold,
+        note="; ".join([*notes, short_note(why)]),
+    )
+    return out
+
+
+def table_cell(key: str, row: dict[str, Any]) -> Any:
+    """A metric as a table prints it: "not learned" for the gain errors of a learner that
+    flies no learned gain, else the value."""
+    if key in ("gain_error", "gain_error_vs_lqr") and row.get("learned") is False:
+        return NOT_LEARNED_TEXT
+    return row.get(key)
