@@ -264,3 +264,18 @@ def test_the_model_fit_learner_carries_the_density_ratio_unless_told_not_to():
     assert Controller(dep, "ddvi").L.shape == (1, 5)  # value iteration: v
     table["deputy"][2]["learning"]["density_exostate"] = False
     assert Controller(deployment_from_table(table, "realistic-nav"), "fit").L.shape == (1, 5)
+
+
+@pytest.mark.integration  # a 7.5-orbit mission
+def test_learning_stops_at_learn_until_orbits_with_no_gain_accepted():
+    dep = _fit_only("rendezvous", 7.5, fit_tolerance=1e-6, learn_until_orbits=6.6)
+    out = run_in_process(dep)
+    ctrl = out["fit"]["controller"]
+    assert ctrl.learn_attempts == 2 and not ctrl.learned_at  # at orbits 6.01 and 6.51, not 7.01
+    assert ctrl.next_attempt == float("inf")
+    assert out["fit"]["log"][-1].endswith("no gain accepted by orbit 6.6: learning stops")
+
+
+def test_learn_until_orbits_before_learn_at_orbits_is_refused():
+    with pytest.raises(DeploymentError, match="learn_until_orbits: must be 0"):
+        _fit_only("rendezvous", 7.0, learn_until_orbits=3.0)
