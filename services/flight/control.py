@@ -17,9 +17,9 @@ one-step predictor, fitted on the data it learned from, and the one-orbit mean o
 input-equivalent residual against the bound it states in its log); on a detection it explores
 again on K0 (phase "relearning"), learns again from the newest ``relearn_window_orbits`` of data
 after ``relearn_settle_orbits``, with the density ratio added to its exostate
-(``Controller.learner_exostate``), switches to the new gains and re-arms the detector; after
-``relearn_max_attempts`` failed attempts it flies the gains of before the detection again
-(source "fallback") and watches no more until it is restarted.  Every
+(services.flight.learners.LearnerExostate), switches to the new gains and re-arms the
+detector; after ``relearn_max_attempts`` failed attempts it flies the gains of before the
+detection again (source "fallback") and watches no more until it is restarted.  Every
 command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
 nav message), which makes the facet's drag linear in u and the same at every altitude.  The
 learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
@@ -29,25 +29,19 @@ about the orbit normal; sigma1 = sigma2 = 0.
 
 from __future__ import annotations
 
-import bisect
 import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
-from ddvi_core.constants import R_EARTH
-from ddvi_core.detection import ChangeDetector
 from ddvi_core.learning import IntervalCollector
 from ddvi_core.model_fit import IntegralHistory
-from ddvi_core.models import drag_allocation
-from ddvi_core.simulate import Exploration
 from services.config import Deployment
-from services.flight.learners import Learner, make_learner
+from services.flight.actuation import Actuation
+from services.flight.learners import Learner, LearnerExostate, make_learner
 from services.flight.phases import Phase, PhaseMachine
 from services.flight.relearning import ChangeWatch, Relearning
-from services.interface import command_topic
 from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
 
 
@@ -72,37 +66,21 @@ class Controller:
         self.problem = nominal_problem(dep, self.deputy)  # Q, R, C, E, F used by the learner
         self.n_rate, self.orbit = mean_motion(dep), orbit_period(dep)
         self.fsw = dep.run.fsw_period
-        self.limit = self.deputy.attitude_limit
         lrn = self.deputy.learning
         self.mode = self.deputy.controller
-        # (C, E, F) of the exosystem the learner and L work with: after a detected change it
-        # gains the density ratio (see learner_exostate; a fallback restores the old one)
-        self.exosystem = (self.problem.C, self.problem.E, self.problem.F)
-        if lrn.carries_density_ratio:  # from the start: craft that may differ
-            self.exosystem = density_exosystem(*self.exosystem)
+        self.actuation = Actuation(dep, sc)  # the commands, and which acts when
+        density_ratio = self.actuation.density_ratio
+        self.exostate = LearnerExostate(self.problem, lrn.carries_density_ratio, density_ratio)
         self.learner: Learner | None = None
         if self.mode == "lqr":
             self.K, self.L = lqr_gains(dep, self.deputy)
             self.phases, self.source = PhaseMachine(Phase.LQR), "lqr"
         else:
             q = self.exosystem[1].shape[0]
-            self.K, self.L = self.initial_gain(), np.zeros((1, q))
-            self.phases, self.source = PhaseMachine(Phase.EXPLORING), "initial"
-            freqs = tuple(lrn.exploration_frequencies) or tuple(
-                np.geomspace(0.3 * self.n_rate, 30 * self.n_rate, 6)
-            )
-            self.exploration = Exploration(lrn.exploration_amplitude, freqs, lrn.seed)
-            self.learn_at = self.next_attempt = lrn.learn_at_orbits * self.orbit
             self.learner = make_learner(dep, self.deputy, self.problem, q)
-        # a command issued at T acts from the environment's first step at or after T + this
-        # (docs/design.md, "Time"): the flight software knows its actuation link's latency
-        self.actuation_delay = dep.link_latency(f"ctrl-{sc}", "environment", command_topic(sc))
-        self.normal_angle = math.radians(dep.spacecraft.normal_angle)
-        self.h_model = dep.chief.a - R_EARTH
-        self.scale_height = dep.atmosphere.scale_height
-        self.u = 0.0  # the attitude command in force, sigma3
-        self.u_applied = 0.0  # the linear-model input it realises (drag_allocation)
-        self.steps: list[tuple[float, float]] = []  # (T, u_applied) of every step so far
+            self.K, self.L = self.learner.initial_gain(), np.zeros((1, q))
+            self.phases, self.source = PhaseMachine(Phase.EXPLORING), "initial"
+            self.next_attempt = lrn.learn_at_orbits * self.orbit
         self.iteration, self.converged = 0, self.mode == "lqr"
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
@@ -121,6 +99,11 @@ class Controller:
         return self.phases.current.value
 
     @property
+    def u(self) -> float:
+        """The attitude command in force, sigma3."""
+        return self.actuation.u
+
+    @property
     def exploring(self) -> bool:
         return self.phases.exploring
 
@@ -134,13 +117,13 @@ class Controller:
         return self.watch.detections
 
     @property
-    def detector(self) -> ChangeDetector | None:
-        """The change detector watching the learned gains (None: not watching)."""
-        return self.watch.detector
+    def exosystem(self) -> tuple:
+        """(C, E, F) of the exosystem the learner and L work with."""
+        return self.exostate.exosystem
 
-    def initial_gain(self) -> np.ndarray:
-        """K0 (1, 4), the gain a learner explores on (the deployment gives 4 values)."""
-        return np.reshape(np.asarray(self.deputy.learning.K0, dtype=float), (1, 4))
+    @property
+    def density_mode(self) -> bool:
+        return self.exostate.density_mode
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -148,53 +131,23 @@ class Controller:
         own commands act, learning ``learn_at_orbits`` from now).  Returns the log line."""
         if self.mode == "lqr":
             return f"restarted: flying the LQR gains from t = {t:.0f} s"
-        self.collect_from = math.ceil((t + self.actuation_delay) / self.fsw - 1e-9) * self.fsw
-        self.learn_at = self.next_attempt = t + self.deputy.learning.learn_at_orbits * self.orbit
+        delay = self.actuation.delay
+        self.collect_from = math.ceil((t + delay) / self.fsw - 1e-9) * self.fsw
+        self.next_attempt = t + self.deputy.learning.learn_at_orbits * self.orbit
         return (
             f"restarted: learning starts over (the data and gains of the previous process are "
             f"lost); exploring from t = {t:.0f} s, data from t = {self.collect_from:.0f} s, "
-            f"learning at t = {self.learn_at:.0f} s"
+            f"learning at t = {self.next_attempt:.0f} s"
         )
-
-    @property
-    def density_mode(self) -> bool:
-        """The learner's exostate carries the density ratio (after a detected change, unless
-        re-learning fell back to gains learned without it)."""
-        return self.exosystem[1].shape[0] > self.problem.q
-
-    def learner_exostate(self, v: np.ndarray, altitude: float) -> np.ndarray:
-        """The exostate the learner collects and L multiplies: v itself, or after a detected
-        change [v; rho(h) / rho(h_0)].  Craft whose drag no longer matches (a panel fault)
-        feel a differential-drag bias proportional to the density at their altitude, which
-        oscillates about 50 % around the orbit and doubles in 20 orbits as the pair decays:
-        the exosystem's constant and harmonics cannot carry it (measured: re-learning
-        windows then never converge).  The bias acts where the input does, so it is
-        regulated with X = 0 and U constant whatever the ratio does; its row of E is zero."""
-        if not self.density_mode:
-            return v
-        return np.append(v, self.density_ratio(altitude))
-
-    def density_ratio(self, altitude: float) -> float:
-        """rho(h) / rho(h_0) of the nominal exponential atmosphere: how much more drag the
-        facet makes at altitude h (m) than the linear model's reference altitude h_0 (the
-        chief's initial orbit).  The pair decays about 1.4 km in 15 orbits, and the drag, hence
-        B, rises about 19% with it."""
-        return math.exp(-(altitude - self.h_model) / self.scale_height)
 
     def command(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> float:
         """The attitude command sigma3 for a flight-software step at t, from state x (4,) and
-        exostate v; ``u_applied`` is the linear-model input it realises (what the learner
-        records)."""
-        u = float((-self.K @ x + self.L @ self.learner_exostate(v, altitude))[0])
+        exostate v; ``actuation.u_applied`` is the linear-model input it realises (what the
+        learner records)."""
+        u = float((-self.K @ x + self.L @ self.exostate(v, altitude))[0])
         if self.exploring:
-            u += float(self.exploration(t, 1)[0])
-        # schedule on the measured altitude: the drag the linear model's u stands for is the
-        # same at every altitude, so the learner sees one B (and the LQR its design B)
-        ratio = self.density_ratio(altitude)
-        self.u, u_area = drag_allocation(u / ratio, self.normal_angle, self.limit)
-        self.u_applied = u_area * ratio
-        self.steps.append((t, self.u_applied))
-        return self.u
+            u += float(self.learner.exploration(t, 1)[0])
+        return self.actuation.allocate(t, u, altitude)
 
     def on_sample(
         self, t: float, x: np.ndarray, v: np.ndarray, altitude: float, z: np.ndarray | None = None
@@ -237,43 +190,27 @@ class Controller:
         seen = self.watch.detected()
         learned = self.learned_at[-1] if self.learned_at else t
         since = t + lrn.relearn_settle_orbits * self.orbit
+        window = lrn.relearn_window_orbits * self.orbit
         self.relearning = Relearning(self.K, self.L, self.exosystem, learned, learner.store,
-                                     (self.rank, self.rank_needed), since)  # fmt: skip
+                                     (self.rank, self.rank_needed), since, window)  # fmt: skip
         self.phases.move(Phase.RELEARNING)
         self.converged, self.source = False, "initial"  # flying K0 again until it re-learns
-        if not self.density_mode:
-            self.exosystem = density_exosystem(*self.exosystem)
+        self.exostate.add_density_ratio()
         q = self.exosystem[1].shape[0]
-        self.K, self.L = self.initial_gain(), np.zeros((1, q))
+        self.K, self.L = learner.initial_gain(), np.zeros((1, q))
         learner.store = learner.new_store(q)
         self.collect_from = since
-        self.next_attempt = since + lrn.relearn_window_orbits * self.orbit
+        self.next_attempt = since + window
         return (
             f"fault detector: at t = {t:.0f} s {seen}; exploring again on K0, re-learning at "
             f"t = {self.next_attempt:.0f} s from the data from t = {since:.0f} s on"
         )
 
-    def input_at(self, t: float) -> float:
-        """The linear-model input this controller had in force at time t: that of its newest
-        step at or before t (a delayed sample is collected after later steps have run)."""
-        k = bisect.bisect_right(self.steps, t + 1e-6, key=lambda step: step[0])
-        return self.steps[k - 1][1] if k else 0.0
-
-    def input_acting(self, t: float) -> float:
-        """The linear-model input acting on the plant from t to the next sample: the
-        environment takes commands at each flight-software boundary T_k, the newest issued by
-        T_k - actuation delay (none yet: the zero command).  With no delay, ``input_at(t)``.
-        Exact for a fixed delay; with jitter the environment may apply a command a step sooner
-        than this assumes, and a command lost on its link leaves the previous one acting."""
-        t_k = math.floor(t / self.fsw + 1e-9) * self.fsw
-        issued = math.floor((t_k - self.actuation_delay) / self.fsw + 1e-9) * self.fsw
-        return self.input_at(issued) if issued > -1e-6 else 0.0
-
     def collect(
         self, t: float, x: np.ndarray, v: np.ndarray, altitude: float, z: np.ndarray | None = None
     ) -> str | None:
         """While exploring, feed the learner the sample with the input acting on the plant
-        from t on (``input_acting``); returns why its store refused it, if it did.  Once
+        from t on (``Actuation.input_acting``); returns why its store refused it, if it did.  Once
         learned, feed the station keeping and the change detector (if armed) instead.  x (4,)
         is the navigation estimate, z (4,) the measurement it came from (None: x): with
         ``learning.learn_from = "measurement"`` the learner, the refresh and the detector get
@@ -284,7 +221,7 @@ class Controller:
             # the filter's estimate lags what its model leaves out (the commanded drag), a
             # bias the fit would learn; the measurement's noise is white, which it averages
             x = z
-        u, v = self.input_acting(t), self.learner_exostate(v, altitude)
+        u, v = self.actuation.input_acting(t), self.exostate(v, altitude)
         if self.phases.current is Phase.LEARNED:
             station = self.learner.station if self.learner is not None else None
             rejected = station.add(t, x, u, v, error) if station is not None else None
@@ -309,7 +246,7 @@ class Controller:
         if before is not None:
             before.failures += 1
             if before.failures >= lrn.relearn_max_attempts:
-                self.K, self.L, self.exosystem = before.K, before.L, before.exosystem
+                self.K, self.L, self.exostate.exosystem = before.K, before.L, before.exosystem
                 self.learner.store = before.store
                 self.rank, self.rank_needed = before.rank
                 self.relearning = None
@@ -328,10 +265,9 @@ class Controller:
         """The first sample time (s) an attempt at t learns from: while re-learning, the
         newest window since settling; else the last ``window_orbits`` (0: all the data, a
         window that grows with every retry)."""
-        lrn = self.deputy.learning
         if self.relearning is not None:
-            return max(self.relearning.since, t - lrn.relearn_window_orbits * self.orbit)
-        return t - lrn.window_orbits * self.orbit if lrn.window_orbits > 0 else -math.inf
+            return self.relearning.window_start(t)
+        return self.learner.window_start(t)
 
     def learn(self, t: float) -> str:
         """Run the deployment's learner on the data so far; switch gains on success."""
@@ -362,10 +298,3 @@ class Controller:
             f"({self.learn_info['wall_s']:.2f} s): "
             f"K = {r.K.ravel().tolist()}, L = {r.L.ravel().tolist()}{armed}"
         )
-
-
-def density_exosystem(C: np.ndarray, E: np.ndarray, F: np.ndarray) -> tuple:
-    """(C, E, F) of an exosystem extended by the density ratio: a mode E holds constant (its
-    row and column of E zero), which the reference F does not see."""
-    F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
-    return C, scipy.linalg.block_diag(E, 0.0), F_rho

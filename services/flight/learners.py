@@ -17,13 +17,16 @@ exosystem E and the orbit rate; never A, B or D.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.model_fit import IntegralHistory
+from ddvi_core.simulate import Exploration
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.config import Deployment, Deputy
 from services.flight.fitting import fit_attempt
@@ -46,7 +49,8 @@ class Attempt:
 
 class Learner:
     """What both learners share: the deputy's learning settings, Q and R (``problem``), the
-    store of the data, the model-fit learner's station keeping (None here)."""
+    exploration, the store of the data, the model-fit learner's station keeping (None
+    here)."""
 
     source = ""  # the label of the gains it learns
 
@@ -55,12 +59,27 @@ class Learner:
         self.orbit, self.n_rate = orbit_period(dep), mean_motion(dep)
         self.nav_period = deputy.navigation.period
         self.translation = [0.0, 1.0, 0.0, 0.0] if self.lrn.along_track_reference else None
+        # the multi-sine eta(t) flown on K0 while exploring, inside the attitude limit
+        freqs = tuple(self.lrn.exploration_frequencies) or tuple(
+            np.geomspace(0.3 * self.n_rate, 30 * self.n_rate, 6)
+        )
+        self.exploration = Exploration(self.lrn.exploration_amplitude, freqs, self.lrn.seed)
         self.store = self.new_store(q)
         self.station: StationKeeping | None = None
 
     def new_store(self, q: int) -> IntervalCollector | IntegralHistory:
         """An empty store for exostates of ``q`` components."""
         raise NotImplementedError
+
+    def initial_gain(self) -> np.ndarray:
+        """K0 (1, 4), the gain it explores on (the deployment gives 4 values)."""
+        return np.reshape(np.asarray(self.lrn.K0, dtype=float), (1, 4))
+
+    def window_start(self, t: float) -> float:
+        """The first sample time (s) an attempt at t learns from: the last ``window_orbits``
+        (0: all the data, a window that grows with every retry)."""
+        lrn = self.lrn
+        return t - lrn.window_orbits * self.orbit if lrn.window_orbits > 0 else -math.inf
 
     def collect(self, t: float, x: np.ndarray, u: float, v: np.ndarray) -> str | None:
         """Store one sample (x (4,), the input u acting from t on, the learner's exostate v);
@@ -158,6 +177,51 @@ class ModelFitLearner(Learner):
         self.station = StationKeeping(
             self.lrn, self.orbit, t, result.K, result.model, exosystem, refresh
         )
+
+
+class LearnerExostate:
+    """The exosystem (C, E, F) the learner and L work with, and the exostate it makes of the
+    environment's v: ``density`` (craft that may differ) adds the density ratio from the start,
+    a detected change adds it later (``add_density_ratio``; a fallback restores the exosystem
+    of before).  ``density_ratio``: rho(h) / rho(h_0) at altitude h (m)."""
+
+    def __init__(
+        self, problem: Any, density: bool, density_ratio: Callable[[float], float]
+    ) -> None:
+        self.q_model = problem.q
+        self.exosystem = (problem.C, problem.E, problem.F)
+        self.density_ratio = density_ratio
+        if density:
+            self.add_density_ratio()
+
+    @property
+    def density_mode(self) -> bool:
+        """The exostate carries the density ratio (after a detected change, unless re-learning
+        fell back to gains learned without it)."""
+        return self.exosystem[1].shape[0] > self.q_model
+
+    def add_density_ratio(self) -> None:
+        if not self.density_mode:
+            self.exosystem = density_exosystem(*self.exosystem)
+
+    def __call__(self, v: np.ndarray, altitude: float) -> np.ndarray:
+        """The exostate the learner collects and L multiplies: v itself, or after a detected
+        change [v; rho(h) / rho(h_0)].  Craft whose drag no longer matches (a panel fault)
+        feel a differential-drag bias proportional to the density at their altitude, which
+        oscillates about 50 % around the orbit and doubles in 20 orbits as the pair decays:
+        the exosystem's constant and harmonics cannot carry it (measured: re-learning
+        windows then never converge).  The bias acts where the input does, so it is
+        regulated with X = 0 and U constant whatever the ratio does; its row of E is zero."""
+        if not self.density_mode:
+            return v
+        return np.append(v, self.density_ratio(altitude))
+
+
+def density_exosystem(C: np.ndarray, E: np.ndarray, F: np.ndarray) -> tuple:
+    """(C, E, F) of an exosystem extended by the density ratio: a mode E holds constant (its
+    row and column of E zero), which the reference F does not see."""
+    F_rho = np.hstack([F, np.zeros((F.shape[0], 1))])
+    return C, scipy.linalg.block_diag(E, 0.0), F_rho
 
 
 def make_learner(dep: Deployment, deputy: Deputy, problem: Any, q: int) -> Learner:

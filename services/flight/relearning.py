@@ -20,7 +20,8 @@ class Relearning:
     """While re-learning: what was flown before the detection (K, L, the exosystem (C, E, F)
     they were learned on, when they were learned, and the learner's store and the rank that
     learned them), flown again if re-learning fails ``relearn_max_attempts`` times; ``since``,
-    when the data for re-learning start; and the count of failed attempts."""
+    when the data for re-learning start, and ``window`` (s), the newest span it learns from;
+    the count of failed attempts."""
 
     K: np.ndarray
     L: np.ndarray
@@ -29,7 +30,13 @@ class Relearning:
     store: Any
     rank: tuple[int, int]
     since: float
+    window: float
     failures: int = 0
+
+    def window_start(self, t: float) -> float:
+        """The first sample time (s) an attempt at t learns from: the newest ``window`` since
+        settling."""
+        return max(self.since, t - self.window)
 
 
 class ChangeWatch:

@@ -241,7 +241,7 @@ def test_a_gain_that_fails_its_validation_is_not_flown():
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
     assert ctrl.phase == "exploring" and not ctrl.learned_at and ctrl.learn_attempts == 1
-    assert np.array_equal(ctrl.K, ctrl.initial_gain())
+    assert np.array_equal(ctrl.K, ctrl.learner.initial_gain())
     assert "failed validation" in out["fit"]["log"][0]
     assert "does not stabilise the model fitted without the newest" in out["fit"]["log"][0]
 
