@@ -133,7 +133,7 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
         assert "fault detector: bound = +-" in out[name]["log"][0]
     faulted, intact = out["ddvi"]["controller"], out["whole"]["controller"]
     assert intact.detections == 0 and intact.phase == "learned"
-    assert intact.detector is not None and intact.detector.statistic < 0.6
+    assert intact.watch.detector is not None and intact.watch.detector.statistic < 0.6
     assert faulted.detections == 1
     assert "left the bound" in out["ddvi"]["log"][1]
     detected = float(out["ddvi"]["log"][1].split("at t = ")[1].split(" s")[0])
@@ -143,7 +143,7 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
     lrn = dep.deputy[1].learning
     wait = (lrn.relearn_settle_orbits + lrn.relearn_window_orbits) * period
     assert faulted.learned_at[1] == pytest.approx(detected + wait, abs=dep.run.fsw_period)
-    assert out["ddvi"]["log"][-1].startswith("re-learned at") and faulted.detector is not None
+    assert out["ddvi"]["log"][-1].startswith("re-learned at") and faulted.watch.detector is not None
     pr = nominal_problem(dep, dep.deputy[1])
     K_faulted = solve_lqr(pr.A, 0.8 * pr.B, pr.Q, pr.R).K
     err_old = np.linalg.norm(intact.K - K_faulted) / np.linalg.norm(K_faulted)
@@ -172,7 +172,7 @@ def test_stuck_panel_is_detected_and_the_learner_switches_to_new_gains() -> None
     assert ddvi.phase == "learned" and len(ddvi.learned_at) == 2
     assert log[-1].startswith("re-learned at") and ddvi.source == "ddvi"
     assert ddvi.learned_at[1] > detected + 12 * period - dep.run.fsw_period
-    assert ddvi.L.shape == (1, 6) and ddvi.detector is not None  # re-armed
+    assert ddvi.L.shape == (1, 6) and ddvi.watch.detector is not None  # re-armed
 
 
 def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
@@ -183,15 +183,18 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
     from types import SimpleNamespace
 
     from services.flight.control import Controller
+    from services.flight.phases import Phase
 
     table = read_table("panel-fault")
     table["deputy"][1]["learning"]["relearn_max_attempts"] = 3
     dep = deployment_from_table(table)
     ctrl = Controller(dep, "ddvi")
     K, L = np.array([[-0.02, 4e-4, -0.9, -9.0]]), np.full((1, 5), 1e-3)
-    ctrl.K, ctrl.L, ctrl.phase, ctrl.source = K, L, "learned", "ddvi"
+    ctrl.K, ctrl.L, ctrl.source = K, L, "ddvi"
+    ctrl.phases.move(Phase.LEARNED)
     ctrl.learned_at = [1000.0]
-    ctrl.detector = SimpleNamespace(mean=np.array([0.1]), bound=np.array([0.05]), statistic=2.0)
+    alarm = SimpleNamespace(mean=np.array([0.1]), bound=np.array([0.05]), statistic=2.0)
+    ctrl.watch.detector = alarm
     t = 2000.0
     collector = ctrl.collector
     assert "the plant has changed" in ctrl.start_relearning(t)
@@ -206,7 +209,7 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
             assert ctrl.next_attempt == pytest.approx(t + period)
     assert "re-learning abandoned after 3 attempts" in log and "learned at t = 1000 s" in log
     assert ctrl.phase == "learned" and ctrl.source == "fallback" and not ctrl.exploring
-    assert ctrl.K is K and ctrl.L is L and not ctrl.density_mode and ctrl.detector is None
+    assert ctrl.K is K and ctrl.L is L and not ctrl.density_mode and ctrl.watch.detector is None
     assert ctrl.abandoned_at == [t] and ctrl.collector is collector
     u = ctrl.command(t, np.zeros(4), np.ones(5), dep.chief.a - R_EARTH)
     assert np.isfinite(u)  # flies: the exostate is the 5-element one L was learned on

@@ -11,6 +11,8 @@ import pytest
 from services.config import DeploymentError, deployment_from_table, load_deployment, read_table
 from services.flight.control import Controller
 from services.flight.inprocess import run_in_process
+from services.flight.phases import Phase
+from services.flight.station import StationKeeping
 from services.flight.trim import StationTrim
 from services.interface import decode, encode
 from services.model import orbit_period, true_lqr_gains
@@ -166,9 +168,20 @@ def _learned(dep, name="fit"):
 
     ctrl = Controller(dep, name)
     p = true_problem(dep, ctrl.deputy)
-    ctrl.phase, ctrl.refresh = "learned", ctrl.new_collector()
+    ctrl.phases.move(Phase.LEARNED)
     ctrl.result = SimpleNamespace(model=SimpleNamespace(A=p.A, B=p.B))
+    store = ctrl.learner.new_store(ctrl.exosystem[1].shape[0])
+    ctrl.learner.station = StationKeeping(
+        ctrl.deputy.learning, orbit_period(dep), 0.0, ctrl.K, ctrl.result.model, ctrl.exosystem,
+        store,
+    )  # fmt: skip
     return ctrl
+
+
+def _refit(ctrl, t: float) -> str:
+    """Refit the learned controller's feedforward at t (s), as its step does when due."""
+    ctrl.L, log = ctrl.learner.station.refit(t, ctrl.L, ctrl.learning_window(t))
+    return log
 
 
 def test_a_refresh_waits_for_a_stay_of_refresh_orbits_and_fits_that_stay_only():
@@ -182,10 +195,10 @@ def test_a_refresh_waits_for_a_stay_of_refresh_orbits_and_fits_that_stay_only():
     _on_station(ctrl, np.arange(3000.0, 5000.0, 10.0), y=5000.0)  # off station: a gap
     stay = 5000.0
     _on_station(ctrl, np.arange(stay, stay + 0.9 * P, 10.0))
-    log = ctrl.refresh_feedforward(stay + 0.9 * P)
+    log = _refit(ctrl, stay + 0.9 * P)
     assert "not refitted" in log and np.array_equal(ctrl.L, L)
     _on_station(ctrl, np.arange(stay + 0.9 * P, stay + 1.5 * P, 10.0))
-    log = ctrl.refresh_feedforward(stay + 1.5 * P)
+    log = _refit(ctrl, stay + 1.5 * P)
     assert "feedforward refitted" in log and not np.array_equal(ctrl.L, L)
     window = P + ctrl.deputy.learning.interval  # 1,146 samples of 10 s
     assert f"from {round(window / 10.0)} samples" in log and not ctrl.L.any()
@@ -196,14 +209,14 @@ def test_a_refit_replaces_the_trim_and_drops_its_errors():
     table["deputy"][2]["learning"]["trim_orbits"] = 2.0
     dep = deployment_from_table(table, "realistic-nav")
     ctrl = _learned(dep)
-    ctrl.trim = StationTrim(2.0 * orbit_period(dep), 1000.0, 0.5, start=0.0)
-    ctrl.trim.total = 0.02
+    ctrl.learner.station.trim = trim = StationTrim(2.0 * orbit_period(dep), 1000.0, 0.5, start=0.0)
+    trim.total = 0.02
     P = 2.0 * orbit_period(dep)
     _on_station(ctrl, np.arange(0.0, 1.5 * P, 10.0), y=40.0)
-    assert ctrl.trim.errors
-    assert "feedforward refitted" in ctrl.refresh_feedforward(1.5 * P)
-    assert ctrl.trim.total == 0.0 and not ctrl.trim.errors
-    assert not ctrl.trim.due(1.5 * P + 0.5 * P) and ctrl.trim.due(2.5 * P)
+    assert trim.errors
+    assert "feedforward refitted" in _refit(ctrl, 1.5 * P)
+    assert trim.total == 0.0 and not trim.errors
+    assert not trim.due(1.5 * P + 0.5 * P) and trim.due(2.5 * P)
 
 
 def _faulted_before_learning(learn_at: float) -> object:
@@ -228,7 +241,7 @@ def test_a_gain_that_fails_its_validation_is_not_flown():
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
     assert ctrl.phase == "exploring" and not ctrl.learned_at and ctrl.learn_attempts == 1
-    assert np.array_equal(ctrl.K, ctrl.initial_gain())
+    assert np.array_equal(ctrl.K, ctrl.learner.initial_gain())
     assert "failed validation" in out["fit"]["log"][0]
     assert "does not stabilise the model fitted without the newest" in out["fit"]["log"][0]
 

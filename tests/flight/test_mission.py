@@ -360,8 +360,8 @@ def test_controller_schedules_drag_on_altitude() -> None:
         ratio = math.exp(-dh / dep.atmosphere.scale_height)
         area_change = math.sin(alpha + 4 * math.atan(sigma)) - math.sin(alpha)
         assert area_change * ratio == pytest.approx(4 * math.cos(alpha) * u, rel=1e-9)
-        assert ctrl.u_applied == pytest.approx(u, rel=1e-9)
-    assert ctrl.density_ratio(h0 - 1400.0) == pytest.approx(1.191, abs=1e-3)
+        assert ctrl.actuation.u_applied == pytest.approx(u, rel=1e-9)
+    assert ctrl.actuation.density_ratio(h0 - 1400.0) == pytest.approx(1.191, abs=1e-3)
 
 
 def test_learner_pairs_samples_with_the_command_acting_through_a_delayed_link() -> None:
@@ -373,17 +373,17 @@ def test_learner_pairs_samples_with_the_command_acting_through_a_delayed_link() 
         {"publisher": "ctrl-ddvi", "subscriber": "environment", "topic": "cmd/*", "delay": 90.0}
     ]
     ctrl = Controller(deployment_from_table(table), "ddvi")
-    assert ctrl.actuation_delay == 90.0
+    assert ctrl.actuation.delay == 90.0
     x, v = np.zeros(4), np.array([1.0, 0.0, 0.0, 0.0, 0.0])
     h0 = ctrl.dep.chief.a - R_EARTH
     for T in (0.0, 60.0, 120.0, 180.0, 240.0):
         ctrl.tick(T, x, v, h0)
-    u = dict(ctrl.steps)
+    u = dict(ctrl.actuation.steps)
     assert len(set(u.values())) == 5  # the exploration makes every step's input distinct
     expected = {0.0: 0.0, 110.0: 0.0, 120.0: u[0.0], 179.0: u[0.0], 180.0: u[60.0], 250.0: u[120.0]}
     for t, want in expected.items():
-        assert ctrl.input_acting(t) == want, t
-    assert Controller(load_deployment(None), "ddvi").actuation_delay == 0.0
+        assert ctrl.actuation.input_acting(t) == want, t
+    assert Controller(load_deployment(None), "ddvi").actuation.delay == 0.0
 
 
 def test_a_stuck_panel_normal_makes_the_drag_its_geometry_says() -> None:

@@ -63,7 +63,7 @@ def test_controller_steps_on_the_flight_software_grid_only() -> None:
     first = ctrl.on_sample(0.0, x, v, h0)
     assert first.fsw and first.learn_log is None and first.rejected is None
     u = ctrl.u
-    assert u != 0.0 and abs(u) <= ctrl.limit
+    assert u != 0.0 and abs(u) <= ctrl.actuation.limit
     between = ctrl.on_sample(dep.run.nav_period, 2 * x, v, h0)
     assert not between.fsw and ctrl.u == u
-    assert ctrl.steps == [(0.0, ctrl.u_applied)]
+    assert ctrl.actuation.steps == [(0.0, ctrl.actuation.u_applied)]
