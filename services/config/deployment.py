@@ -41,6 +41,10 @@ __all__ = [
 ]
 
 
+LEASE_MARGIN = 15.0
+"""Wall seconds a session's lease outlasts run.hang_timeout (``Deployment.session_lease_ms``)."""
+
+
 class DeploymentError(ValueError):
     """A deployment file that cannot be run; the message names the key."""
 
@@ -269,6 +273,13 @@ class Deployment:
         for d in self.deputy:
             names += [f"nav-{d.name}", f"ctrl-{d.name}"]
         return [*names, "environment"]
+
+    def session_lease_ms(self) -> int:
+        """Every session's lease (zenoh ``transport/link/tx/lease``), the hub's and each
+        service's: run.hang_timeout plus ``LEASE_MARGIN``, so that a frozen service (and the
+        hub, as its frozen client sees it) stays on the bus until the hang timeout has named it,
+        while a crashed one, whose connection closes, is seen gone at once."""
+        return int(1000 * (self.run.hang_timeout + LEASE_MARGIN))
 
     def links_for(self, subscriber: str) -> list[LinkRule]:
         """The link rules that apply at one subscribing service, in file order."""

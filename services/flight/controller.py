@@ -30,7 +30,7 @@ import numpy as np
 
 from services.bus import queue_handler, watch_alive
 from services.flight.control import Controller
-from services.flight.health import SAFE_SIGMA, HangError, Waiting
+from services.flight.health import HANG_STATUS, SAFE_SIGMA, HangError, Waiting
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FinalClock, SamplePairs
 from services.interface import (
@@ -177,8 +177,8 @@ class ControllerService:
     # -- the main loop ------------------------------------------------------------------------
 
     def run(self) -> int:
-        """Take messages until the mission is over or a stop is requested; returns 0, or 1
-        when lock-step hung on this controller's inputs (``HangError``)."""
+        """Take messages until the mission is over or a stop is requested; returns 0, or
+        HANG_STATUS when lock-step hung on this controller's inputs (``HangError``)."""
         if not self.ctx.joining:
             self.publish_gains(0.0)
         status = 0
@@ -202,7 +202,7 @@ class ControllerService:
                     break
         except HangError as exc:
             self.ctx.log("error", str(exc), exc.t)
-            status = 1
+            status = HANG_STATUS
         t_end = self.next_tick - self.fsw
         self.publish_gains(t_end)
         self.publish_status(t_end)

@@ -37,7 +37,7 @@ import numpy as np
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive, watch_alive
 from services.config import check_panel
-from services.flight.health import HangError, Waiting
+from services.flight.health import HANG_STATUS, HangError, Waiting
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FaultQueue
 from services.interface import CLOCK, EXOSTATE, Message, command_topic, fault_topic, truth_topic
@@ -166,7 +166,7 @@ class EnvironmentService:
 
     def run(self) -> int:
         """Propagate to the end of the mission (or a stop request, or a re-entry); returns 0
-        if the mission completed, 3 if not, 1 if lock-step hung on a service (``HangError``)."""
+        if the mission completed, 3 if not, HANG_STATUS if lock-step hung on a service."""
         run, truth, counters = self.run_cfg, self.truth, self.counters
         state = truth.state
         self.publish_sample(0.0, state, self.attitudes(state[None])[0], final=self.t_end <= 0)
@@ -177,7 +177,7 @@ class EnvironmentService:
             except HangError as exc:
                 self.ctx.log("error", str(exc), t_k)
                 self.ctx.publish_stats(t_k, {**counters, "completed": 0})
-                return 1
+                return HANG_STATUS
             self.apply_panel_faults(t_k)
             t_next = t_k + self.fsw
             try:

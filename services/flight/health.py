@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import time
 
+HANG_STATUS = 4
+"""A flight service's exit status when it gave up a lock-step wait (``HangError``): the launcher
+ends the run (status 1) naming the silent service, whatever the restart policy."""
+
 SAFE_SIGMA = (0.0, 0.0, 0.0)
 """The safe attitude command (relative MRP): the deputy Hill-pointing like the chief, so the two
 present the same drag and the formation drifts only as its relative orbit does, instead of being

@@ -171,17 +171,6 @@ def mission_window(dep: Deployment) -> tuple[float, float]:
     return -margin, duration(dep) + margin
 
 
-LEASE_MARGIN = 15.0
-"""Wall seconds a service's session lease outlasts the run's hang timeout (``lease_ms``)."""
-
-
-def service_lease_ms(dep: Deployment) -> int:
-    """A service's session lease: past the hang timeout, so that a frozen service keeps its
-    liveliness token (it is waited for, then named) while a crashed one, whose connection
-    closes, is seen gone at once."""
-    return int(1000 * (dep.run.hang_timeout + LEASE_MARGIN))
-
-
 def rate_budget(dep: Deployment, run: str) -> RateBudget:
     """What a service takes from each publisher of ``run`` (``services.bus.budget``)."""
     r = dep.run
@@ -189,7 +178,7 @@ def rate_budget(dep: Deployment, run: str) -> RateBudget:
 
 
 def bus_settings(dep: Deployment, hub: str, credentials: Credentials | None = None) -> BusSettings:
-    connect, lease = [hub, *dep.bus.connect], service_lease_ms(dep)
+    connect, lease = [hub, *dep.bus.connect], dep.session_lease_ms()
     if credentials is not None:  # a secure bus: the hub's client, listening on nothing
         return BusSettings(mode="client", listen=[], connect=connect, user=credentials.user,
                            password=credentials.password, tls=credentials.tls,
