@@ -134,7 +134,7 @@ class ControllerService:
         self.lockstep = run.mode == "lockstep"
         self.patience = (run.command_deadline, run.hang_timeout)
         self.waiting: tuple[float, Waiting] | None = None  # the step waited for, and how long
-        self.stale_limit = run.nav_stale_limit or 2.0 * self.nav_period
+        self.stale_limit = run.nav_stale_limit or 2.0 * self.fsw
         self.safe = False  # flying the safe attitude
 
     # -- publishing ---------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import psutil
 import pytest
 
 from benchmarks.flood import DEPLOYMENT, readable
+from services.ground.recording import read_recording
 
 pytestmark = pytest.mark.integration
 
@@ -93,3 +94,27 @@ def test_a_navigation_frozen_past_the_hang_timeout_ends_the_run_naming_it(
     assert "nav-lqr is hung" in err and "run.hang_timeout" in err, err
     assert (out / "report.md").is_file() and readable(out / "recording.mcap")
     assert not psutil.Process().children(recursive=True)  # every service stopped
+
+
+def test_real_time_flies_the_safe_attitude_on_stale_navigation_and_says_so(
+    tmp_path: Path,
+) -> None:
+    """Real time does not wait: with nav-lqr frozen, ctrl-lqr commands the safe attitude (the
+    zero relative attitude) once its navigation is older than run.nav_stale_limit, counts the
+    steps, and the completed run exits 3 naming it."""
+    dep = _deployment(tmp_path, command_deadline=1.0, hang_timeout=30.0)
+    text = dep.read_text().replace('mode = "lockstep"', 'mode = "realtime"\nrate = 600.0', 1)
+    text = text.replace(f"orbits = {ORBITS}", "orbits = 1.5", 1)
+    dep.write_text(text)
+    status, err, out = _fly(dep, tmp_path / "rt", freeze=3.0)
+    assert status == 3, err
+    assert "safe attitude flown by" in err and "ctrl-lqr (" in err
+    summary = json.loads((out / "summary.json").read_text())
+    safe = summary["outcome"]["health"]["safe_attitude_steps"]
+    assert safe["ctrl-lqr"] >= 3, safe  # 3 s frozen: 1800 s
+    assert "safe attitude flown" in (out / "report.md").read_text()
+    said = (out / "logs" / "ctrl-lqr.log").read_text()
+    assert "flying the safe attitude" in said and "navigation is back" in said
+    records, _ = read_recording(out / "recording.mcap")
+    flown = [r.data["body"]["sigma"] for r in records if r.topic == "cmd/lqr/att"]
+    assert sum(sigma == [0.0, 0.0, 0.0] for sigma in flown) >= safe["ctrl-lqr"]
