@@ -15,6 +15,11 @@ While its navigation service is away (liveliness token gone for NAV_AWAY_GRACE, 
 is back) a step flies on the newest sample there is.  Restarted into a running mission
 (``--join``) it flies from the first step it has a sample for; a learner starts over
 (``Controller.rejoin``) and says so in its log.
+Health (docs/health.md): in lock-step a step whose sample does not come is said after
+run.command_deadline and given up past run.hang_timeout (exit HANG_STATUS, naming nav-<deputy>);
+in real time a step whose newest sample is older than run.nav_stale_limit flies the safe
+attitude (counted in safe_attitude_steps).  A flood on an input, dropped unread by the bus's
+rate budget, counts as that step's sample lost.
 """
 
 from __future__ import annotations

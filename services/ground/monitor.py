@@ -7,7 +7,9 @@ Run by the launcher, first of all services::
 It subscribes to ``ddvi/<run>/**`` with a raw zenoh subscriber (not ``Bus.subscribe``, so that
 undecodable payloads are recorded too) and to the run's liveliness tokens, and writes
 ``DIR/recording.mcap`` (``services.ground.recording``; a batch,
-``services.interface.unpack_batch``, message by message).
+``services.interface.unpack_batch``, message by message).  A sample past its key's rate budget
+(``services.bus.budget``) is dropped in the subscriber's callback, unread and unqueued, and
+counted (``flooded``, ``flood.<publisher>``): a flood never puts the monitor behind.
 
 A message whose (publisher, topic, seq) was seen already, or is older than the receiver's
 sequence window (``services.bus.SequenceGuard``), is recorded but kept out of the report and
