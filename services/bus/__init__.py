@@ -1,12 +1,14 @@
 """The bus substrate: Zenoh sessions and their settings (``session``), the endpoint every
 service publishes and subscribes through (``endpoint``: sequence numbers, batching), its replay
-guards (``guards``), link impairment models (``links``), liveliness (``liveliness``), and
+guards (``guards``), per-publisher rate budgets (``budget``), link impairment models
+(``links``), liveliness (``liveliness``), and
 security: credentials, access control from the topology and TLS material (``security``,
 ``tls``).
 
 May import: ``services.interface``, zenoh, numpy. Not configuration, models or processes.
 """
 
+from services.bus.budget import RateBudget, budget_for, message_count
 from services.bus.endpoint import Bus, queue_handler
 from services.bus.guards import SEQUENCE_REASONS, SequenceGuard, SequenceGuards
 from services.bus.links import (
@@ -40,10 +42,13 @@ __all__ = [
     "LinkModel",
     "LinkRule",
     "LinkSpec",
+    "RateBudget",
     "SequenceGuard",
     "SequenceGuards",
+    "budget_for",
     "check_name",
     "impairs_truth",
+    "message_count",
     "open_session",
     "queue_handler",
     "rule_latency",

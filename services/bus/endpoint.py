@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import queue
 import threading
 import time
@@ -28,6 +29,7 @@ from typing import Any
 
 import zenoh
 
+from services.bus.budget import Dropped, RateBudget
 from services.bus.guards import ORIGIN_REASONS, SEQUENCE_REASONS, SequenceGuards, check_origin
 from services.bus.links import CLOCKS, LinkModel, LinkRule, rule_latency, select_rule
 from services.bus.session import check_name, key_prefix
@@ -42,7 +44,7 @@ from services.interface import (
     pack_batch,
     unpack_batch,
 )
-from services.interface.topics import alive_topic
+from services.interface.topics import CLOCK, alive_topic
 
 log = logging.getLogger("ddvi.bus")
 
@@ -100,6 +102,8 @@ class _Route:
     lock: threading.RLock = field(default_factory=threading.RLock)
     subscriber: Any = None
     key: str | None = None  # the one key a subscription without wildcards hears
+    lost: Dropped | None = None  # told of a key's messages its rate budget dropped
+    lost_told: dict[str, float] = field(default_factory=dict)  # key -> sim time last told
 
     def all_models(self) -> list[LinkModel]:
         return ([self.link] if self.link is not None else []) + list(self.models.values())
@@ -115,7 +119,9 @@ class Bus:
     ``link_clock`` ("sim": the time given to ``pump``; "wall": ``time.monotonic()``), one model
     per publisher, seeded from ``seed``.  A received message whose ``src`` is not its topic's
     publisher per the topology, or whose time lies outside ``time_window`` (earliest, latest
-    simulation time, s; None: not checked), is refused (``guards.check_origin``).
+    simulation time, s; None: not checked), is refused (``guards.check_origin``).  With a
+    ``budget`` (``services.bus.budget``), a sample past its key's rate budget is dropped before
+    it is decoded, and counted (``flooded``, ``flood.<publisher>``).
     """
 
     def __init__(
@@ -127,6 +133,7 @@ class Bus:
         link_clock: str = "sim",
         seed: int = 0,
         time_window: tuple[float, float] | None = None,
+        budget: RateBudget | None = None,
     ) -> None:
         if link_clock not in CLOCKS:
             raise ValueError(f"link_clock: expected one of {CLOCKS}, got {link_clock!r}")
@@ -152,6 +159,7 @@ class Bus:
         self._counts.update({f"rejected.{r}": 0 for r in SEQUENCE_REASONS})
         self._counts.update({f"rejected.{r}": 0 for r in ORIGIN_REASONS})
         self.time_window = time_window
+        self.budget = budget
         self._rules = list(links)
         self._link_clock, self._seed = link_clock, seed
         self._rule_cache: dict[tuple[str, str], int | None] = {}
@@ -173,6 +181,10 @@ class Bus:
         with self._pub_lock:
             out["sent"] = self._sent
         out.update(dict.fromkeys(_LINK_COUNTERS, 0))
+        if self.budget is not None:
+            flood = self.budget.counters()
+            out["flooded"] = sum(flood.values())
+            out.update(flood)
         for route in list(self._routes):
             with route.lock:
                 for model in route.all_models():
@@ -270,6 +282,7 @@ class Bus:
         expected_schema: str | Collection[str] | None = None,
         link: LinkModel | None = None,
         observe: Handler | None = None,
+        lost: Dropped | None = None,
     ) -> None:
         """Subscribe to ``ddvi/<run>/<topic_pattern>`` (zenoh wildcards allowed).
 
@@ -283,10 +296,13 @@ class Bus:
         link are delivered by ``pump``.  Then ``observe(topic, message)``, if given, sees every
         accepted message, whatever the link did with it (delivered, held or dropped): a
         lock-step loop uses it to know that a message it waits for is accounted for.
+        ``lost(topic)``, if given, is told (once a key per step of the receiver's clock) that
+        the bus's rate budget dropped messages on ``topic`` unread: what a lock-step loop
+        waits for may be among them.
         """
         if self._closed:
             raise RuntimeError(f"bus of {self.service} is closed")
-        route = _Route(handler, expected_schema, link, observe, index=len(self._routes))
+        route = _Route(handler, expected_schema, link, observe, index=len(self._routes), lost=lost)
         if "*" not in topic_pattern:
             route.key = self.prefix + topic_pattern
         route.subscriber = self.session.declare_subscriber(
@@ -325,6 +341,9 @@ class Bus:
         try:
             key = route.key or str(sample.key_expr)  # a string per sample costs
             payload = sample.payload.to_bytes()
+            if self.budget is not None and not self.budget.take(key, payload):
+                self._tell_lost(route, key)
+                return
             try:
                 parts = unpack_batch(payload)  # also refuses an oversized payload
             except MessageError as err:
@@ -334,6 +353,19 @@ class Bus:
         except Exception:
             self._count("handler_errors")
             log.exception("%s: error in bus callback", self.service)
+
+    def _tell_lost(self, route: _Route, key: str) -> None:
+        """Tell the route's ``lost`` of a budget's drop on ``key``, once a receiver's step."""
+        if route.lost is None or route.lost_told.get(key, -math.inf) >= self._sim_time:
+            return
+        if len(route.lost_told) < 1024 or key in route.lost_told:  # bounded, as the budget
+            route.lost_told[key] = self._sim_time
+        topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+        try:
+            route.lost(topic)
+        except Exception:
+            self._count("handler_errors")
+            log.exception("%s: lost-message handler failed on %s", self.service, topic)
 
     def _on_messages(self, route: _Route, key: str, payloads: Iterable[bytes]) -> None:
         """Messages off the wire, one sample's: decode, link, deliver, observe (see
@@ -355,6 +387,8 @@ class Bus:
                              f"{message.t:g}: " + _ORIGIN_TEXT[why])  # fmt: skip
                 continue
             messages.append(message)
+            if self.budget is not None and topic == CLOCK:  # the time master's, checked above
+                self.budget.advance(message.t)
         if not messages:
             return
         try:
@@ -432,6 +466,8 @@ class Bus:
         """
         if sim_time is not None:
             self._sim_time = float(sim_time)
+            if self.budget is not None:
+                self.budget.advance(self._sim_time)
         if self._closed:
             return 0
         delivered = 0

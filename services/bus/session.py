@@ -59,6 +59,10 @@ class BusSettings:
     dictionary: str = ""
     access_control: dict[str, Any] | None = field(default=None, repr=False)
     tls: dict[str, Any] = field(default_factory=dict)
+    # ms without a word from this session before its peers drop it (its liveliness tokens go);
+    # 0: zenoh's default.  A service's outlasts the run's hang timeout: a frozen service is
+    # waited for (and named), not taken for gone while it may still come back
+    lease_ms: int = 0
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -114,6 +118,8 @@ def zenoh_config(settings: BusSettings) -> zenoh.Config:
         config.insert_json5("access_control", json.dumps(settings.access_control))
     if settings.tls:
         config.insert_json5("transport/link/tls", json.dumps(settings.tls))
+    if settings.lease_ms > 0:
+        config.insert_json5("transport/link/tx/lease", str(int(settings.lease_ms)))
     return config
 
 

@@ -41,6 +41,10 @@ __all__ = [
 ]
 
 
+LEASE_MARGIN = 15.0
+"""Wall seconds a session's lease outlasts run.hang_timeout (``Deployment.session_lease_ms``)."""
+
+
 class DeploymentError(ValueError):
     """A deployment file that cannot be run; the message names the key."""
 
@@ -53,7 +57,10 @@ class Run:
     fsw_period: float = 60.0  # flight-software (command) period, s
     mode: str = "lockstep"  # or "realtime"
     rate: float = 1.0  # realtime: simulated seconds per wall second
-    command_deadline: float = 10.0  # lockstep: wall seconds to wait for a step's commands
+    command_deadline: float = 10.0  # lockstep: wall seconds before a missing command is said
+    hang_timeout: float = 60.0  # lockstep: wall seconds a step waits for a service at most
+    nav_stale_limit: float = 0.0  # realtime: navigation age (s) past which a safe attitude is
+    # flown; 0: two flight-software steps
     startup_timeout: float = 60.0  # wall seconds for every service to come alive
     output: str = "runs"  # where run folders (recording, report) are written
     seed: int = 1
@@ -266,6 +273,13 @@ class Deployment:
         for d in self.deputy:
             names += [f"nav-{d.name}", f"ctrl-{d.name}"]
         return [*names, "environment"]
+
+    def session_lease_ms(self) -> int:
+        """Every session's lease (zenoh ``transport/link/tx/lease``), the hub's and each
+        service's: run.hang_timeout plus ``LEASE_MARGIN``, so that a frozen service (and the
+        hub, as its frozen client sees it) stays on the bus until the hang timeout has named it,
+        while a crashed one, whose connection closes, is seen gone at once."""
+        return int(1000 * (self.run.hang_timeout + LEASE_MARGIN))
 
     def links_for(self, subscriber: str) -> list[LinkRule]:
         """The link rules that apply at one subscribing service, in file order."""

@@ -71,6 +71,8 @@ def check_run_ranges(dep: Deployment) -> None:
     within("run.rate", r.rate, 0.0, 1e6, open_lo=True)
     within("run.command_deadline", r.command_deadline, 0.0, 3600.0, open_lo=True)
     within("run.startup_timeout", r.startup_timeout, 0.0, 3600.0, open_lo=True)
+    within("run.hang_timeout", r.hang_timeout, 0.0, 3600.0, open_lo=True)
+    within("run.nav_stale_limit", r.nav_stale_limit, 0.0, 86400.0)
     within("run.seed", r.seed, 0, MAX_SEED)
     within("run.status_every", r.status_every, 1, 1_000_000)
 

@@ -54,7 +54,7 @@ def _one_of(where: str, value: str, allowed: tuple[str, ...]) -> None:
 def check_run(dep: Deployment) -> None:
     """run: positive times, a known mode, the command period a multiple of the nav period."""
     r = dep.run
-    for key in ("orbits", "nav_period", "fsw_period", "rate", "command_deadline"):
+    for key in ("orbits", "nav_period", "fsw_period", "rate", "command_deadline", "hang_timeout"):
         _positive(f"run.{key}", getattr(r, key))
     _positive("run.startup_timeout", r.startup_timeout)
     _one_of("run.mode", r.mode, ("lockstep", "realtime"))

@@ -15,6 +15,11 @@ While its navigation service is away (liveliness token gone for NAV_AWAY_GRACE, 
 is back) a step flies on the newest sample there is.  Restarted into a running mission
 (``--join``) it flies from the first step it has a sample for; a learner starts over
 (``Controller.rejoin``) and says so in its log.
+Health (docs/health.md): in lock-step a step whose sample does not come is said after
+run.command_deadline and given up past run.hang_timeout (exit HANG_STATUS, naming nav-<deputy>);
+in real time a step whose newest sample is older than run.nav_stale_limit flies the safe
+attitude (counted in safe_attitude_steps).  A flood on an input, dropped unread by the bus's
+rate budget, counts as that step's sample lost.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import numpy as np
 
 from services.bus import queue_handler, watch_alive
 from services.flight.control import Controller
+from services.flight.health import HANG_STATUS, SAFE_SIGMA, HangError, Waiting
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FinalClock, SamplePairs
 from services.interface import (
@@ -48,6 +54,7 @@ NAV_AWAY_GRACE = 1.0
 undeclaration can overtake the samples the service put just before it left."""
 _SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
 _PRESENCE = "presence"  # inbox tag: the navigation service came or went
+_LOST = "lost"  # inbox tag: the bus's rate budget dropped nav or exo messages unread (a flood)
 
 Sample = tuple[float, np.ndarray, np.ndarray, float, np.ndarray]
 """A navigation sample paired with its exostate: (t (s), the estimate x (4,), v (q,),
@@ -62,10 +69,13 @@ def main(ctx: ServiceContext) -> int:
     def seen(_topic: str, msg: Message) -> None:
         inbox.put((_SEEN, msg))
 
-    ctx.bus.subscribe(
-        nav_state_topic(sc), queue_handler(inbox), expected_schema="nav", observe=seen
-    )
-    ctx.bus.subscribe(EXOSTATE, queue_handler(inbox), expected_schema="exo", observe=seen)
+    def lost(topic: str) -> None:
+        inbox.put((_LOST, topic))
+
+    ctx.bus.subscribe(nav_state_topic(sc), queue_handler(inbox), expected_schema="nav",
+                      observe=seen, lost=lost)  # fmt: skip
+    ctx.bus.subscribe(EXOSTATE, queue_handler(inbox), expected_schema="exo", observe=seen,
+                      lost=lost)  # fmt: skip
     ctx.bus.subscribe(CLOCK, queue_handler(inbox), expected_schema="clock")
     presence = watch_alive(
         ctx.bus.session, ctx.run, f"nav-{sc}", lambda _name, up: inbox.put((_PRESENCE, up))
@@ -110,7 +120,8 @@ class ControllerService:
             maxlen=math.ceil(self.delay / self.nav_period) + 8
         )
         self.counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0,
-                         "fault_detections": 0, "relearning_abandoned": 0}  # fmt: skip
+                         "fault_detections": 0, "relearning_abandoned": 0,
+                         "safe_attitude_steps": 0}  # fmt: skip
         # the clock's time reached, and the nav and exo samples accounted for up to
         self.reached = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}
         self.steps = 0
@@ -122,6 +133,14 @@ class ControllerService:
         # for good.
         self.nav_gone: float | None = None  # when its token went (monotonic s)
         self.final = FinalClock()
+        # health (docs/health.md): in lock-step a step waits for its sample, said after
+        # run.command_deadline and given up past run.hang_timeout; in real time a step whose
+        # newest sample is older than the limit flies the safe attitude
+        self.lockstep = run.mode == "lockstep"
+        self.patience = (run.command_deadline, run.hang_timeout)
+        self.waiting: tuple[float, Waiting] | None = None  # the step waited for, and how long
+        self.stale_limit = run.nav_stale_limit or 2.0 * self.fsw
+        self.safe = False  # flying the safe attitude
 
     # -- publishing ---------------------------------------------------------------------------
 
@@ -163,29 +182,55 @@ class ControllerService:
     # -- the main loop ------------------------------------------------------------------------
 
     def run(self) -> int:
-        """Take messages until the mission is over or a stop is requested; returns 0."""
+        """Take messages until the mission is over or a stop is requested; returns 0, or
+        HANG_STATUS when lock-step hung on this controller's inputs (``HangError``)."""
         if not self.ctx.joining:
             self.publish_gains(0.0)
-        while not self.ctx.stop.is_set():
-            try:
-                kind, msg = self.inbox.get(timeout=0.5 if self.nav_gone is None else 0.1)
-            except queue.Empty:
-                if self.final.grace_over():
-                    break  # the last samples were lost on their links
-                self.advance()  # a step may wait for navigation's grace to run out
+        status = 0
+        try:
+            while not self.ctx.stop.is_set():
+                try:
+                    kind, msg = self.inbox.get(timeout=0.5 if self.nav_gone is None else 0.1)
+                except queue.Empty:
+                    if self.final.grace_over():
+                        break  # the last samples were lost on their links
+                    self.advance()  # a step may wait for navigation's grace to run out
+                    self.check_waiting()
+                    if self.done():
+                        break
+                    continue
+                self.take(kind, msg)
+                if self.inbox.empty():  # what pump() just released is queued: take it in first
+                    self.advance()
+                    self.check_waiting()
                 if self.done():
                     break
-                continue
-            self.take(kind, msg)
-            if self.inbox.empty():  # what pump() just released is queued: take it in first
-                self.advance()
-            if self.done():
-                break
+        except HangError as exc:
+            self.ctx.log("error", str(exc), exc.t)
+            status = HANG_STATUS
         t_end = self.next_tick - self.fsw
         self.publish_gains(t_end)
         self.publish_status(t_end)
         self.ctx.publish_stats(t_end, self.counters)
-        return 0
+        return status
+
+    def check_waiting(self) -> None:
+        """Lock-step: the step whose clock has come but not its sample waits; said after
+        run.command_deadline, ``HangError`` naming the silent service past run.hang_timeout."""
+        T, reached = self.next_tick, self.reached
+        if not self.lockstep or math.isinf(T) or reached["now"] < T - 1e-6 or self.tick_ready(T):
+            self.waiting = None
+            return
+        if self.waiting is None or self.waiting[0] != T:
+            self.waiting = (T, Waiting(*self.patience))
+        waiting, want = self.waiting[1], self.expected_sample(T)
+        who = f"nav-{self.sc}" if reached["nav"] < want - 1e-6 else "environment"
+        now = time.monotonic()
+        if waiting.said_at(now):
+            self.ctx.log("warning", f"lock-step paused at t = {T:.0f} s: no sample for t = "
+                         f"{want:.0f} s from {who} for {waiting.said:g} s", T)  # fmt: skip
+        if waiting.over(now):
+            raise HangError(who, f"sample for t = {want:.0f} s", T, waiting.hang)
 
     def take(self, kind: str, msg: Any) -> None:
         """One inbox entry: navigation's presence (``msg``: up or not), or a message: a sample
@@ -198,6 +243,11 @@ class ControllerService:
         elif kind == _SEEN:
             key = "nav" if msg.schema == "nav" else "exo"
             self.reached[key] = max(self.reached[key], msg.t)
+        elif kind == _LOST:  # flooded past its budget: the pending step's sample may be lost
+            key = "exo" if msg == EXOSTATE else "nav"
+            if not math.isinf(self.next_tick):
+                want = self.expected_sample(self.next_tick)
+                self.reached[key] = max(self.reached[key], want)
         elif msg.schema == "clock":
             self.reached["now"] = max(self.reached["now"], msg.t)
             self.ctx.bus.pump(msg.t)  # release what the links held until now
@@ -245,6 +295,8 @@ class ControllerService:
         if math.isinf(T):  # restarted, no sample yet: no step to fly
             return False
         want, reached = self.expected_sample(T), self.reached
+        if not self.lockstep and reached["now"] >= T + self.stale_limit - 1e-6:
+            return True  # real time does not wait past the limit: the step flies safe
         return reached["now"] >= T - 1e-6 and (
             want < -1e-6
             or (
@@ -261,11 +313,14 @@ class ControllerService:
         candidates = [(t, *self.ready[t]) for t in self.ready if t <= limit]
         candidates += [s for s in self.recent if s[0] <= limit]
         newest = max(candidates, key=lambda s: s[0]) if candidates else None
-        if newest is None:  # nothing measured yet (a delayed start): hold the zero command
-            learn_log = None
+        learn_log = None
+        if self.fly_safe(T, newest):
+            sigma = list(SAFE_SIGMA)
         else:
-            _, x, v, altitude, _ = newest
-            learn_log = ctrl.tick(T, x, v, altitude)
+            if newest is not None:  # else nothing measured yet (a delayed start): hold zero
+                _, x, v, altitude, _ = newest
+                learn_log = ctrl.tick(T, x, v, altitude)
+            sigma = [0.0, 0.0, ctrl.u]
         if learn_log is not None:
             counters["learn_attempts"] = ctrl.learn_attempts
             counters["fault_detections"] = ctrl.detections
@@ -275,7 +330,7 @@ class ControllerService:
         self.ctx.bus.publish(
             command_topic(self.sc),
             "cmd",
-            {"sc": self.sc, "sigma": [0.0, 0.0, ctrl.u], "for_t": T},
+            {"sc": self.sc, "sigma": sigma, "for_t": T},
             T,
         )
         counters["commands"] += 1
@@ -285,6 +340,26 @@ class ControllerService:
         if self.steps % self.status_every == 0:
             self.publish_status(T)
             self.ctx.publish_stats(T, counters)
+
+    def fly_safe(self, T: float, newest: Sample | None) -> bool:
+        """Real time: whether the step at T flies the safe attitude, its newest sample older
+        than the limit (run.nav_stale_limit) past the one it should have; said on the way in
+        and out, counted in safe_attitude_steps."""
+        if self.lockstep or (self.steps == 0 and newest is None):
+            return False
+        age = self.expected_sample(T) - (newest[0] if newest is not None else -math.inf)
+        safe = age > self.stale_limit + 1e-6
+        if safe != self.safe:
+            self.safe = safe
+            said = (
+                f"navigation {age:.0f} s old (limit {self.stale_limit:g} s): flying the "
+                "safe attitude"
+                if safe
+                else "navigation is back: flying the control law"
+            )
+            self.ctx.log("warning", f"ctrl-{self.sc} at t = {T:.0f} s: {said}", T)
+        self.counters["safe_attitude_steps"] += safe
+        return safe
 
     def collect(self, t: float) -> None:
         x, v, altitude, z = self.ready.pop(t)

@@ -12,12 +12,14 @@ flight-software step at a time, with each deputy's commanded relative MRP (clipp
 attitude limit) held over the step.  Lock-step mode: after publishing the samples of step t_k it
 waits until every controller's command for the step its link delay maps to (issued at T, it
 arrives at T + delay, so the newest that can act from t_k is for floor((t_k - delay) / fsw)
-steps) is accounted for (delivered, or dropped by its link), or until the wall-clock deadline;
-a missing command leaves the last one in force (zero-order hold, as an actuator would) and is
-counted.  A controller that goes away (its liveliness token gone: crashed, restarting) is not
-waited for step by step: lock-step pauses once, up to run.command_deadline wall seconds, for it
-to come back (a restart takes a few), and from its return it is waited for again from the next
-step; while it is away its deputy holds its last command (counted in controller_away_steps).
+steps) is accounted for (delivered, or dropped by its link).  Simulated time never moves past a
+controller that is there (its liveliness token alive) but silent: the mission pauses (said after
+run.command_deadline wall seconds, counted in paused_steps) and, past run.hang_timeout, ends
+with status 1 naming the controller (docs/health.md).  A controller that goes away (its token
+gone: crashed, restarting) is not waited for step by step: lock-step pauses once, up to
+run.command_deadline wall seconds, for it to come back (a restart takes a few), and from its
+return it is waited for again from the next step; while it is away its deputy holds its last
+command (counted in controller_away_steps, and missing commands in missing_commands).
 Real-time mode: paces the samples to
 wall time times run.rate and never waits.
 """
@@ -35,6 +37,7 @@ import numpy as np
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive, watch_alive
 from services.config import check_panel
+from services.flight.health import HANG_STATUS, HangError, Waiting
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FaultQueue
 from services.interface import CLOCK, EXOSTATE, Message, command_topic, fault_topic, truth_topic
@@ -51,6 +54,7 @@ from services.model import (
 
 _OBSERVED = "observed"  # inbox tag of a command seen by the link layer (see subscribe)
 _PRESENCE = "presence"  # inbox tag of a controller's liveliness change
+_LOST = "lost"  # inbox tag: the bus's rate budget dropped commands unread (a flood)
 _PANEL = fault_topic("panel")  # topic of run-time panel faults
 
 
@@ -74,6 +78,7 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         queue_handler(inbox),
         expected_schema="cmd",
         observe=lambda _topic, msg: inbox.put((_OBSERVED, msg)),
+        lost=lambda topic: inbox.put((_LOST, topic)),
     )
     ctx.bus.subscribe(_PANEL, queue_handler(inbox), expected_schema="fault")
     ctx.ready()
@@ -100,6 +105,9 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
 
 STOP_POLL = 0.25
 """Wall seconds the command wait blocks before it looks at a stop request again."""
+HANG_MARGIN = 5.0
+"""Wall seconds the environment waits for a controller past run.hang_timeout: a controller
+waiting on its own navigation gives up first and names it (``services.flight.controller``)."""
 
 
 class EnvironmentService:
@@ -133,6 +141,7 @@ class EnvironmentService:
             "clipped_commands": 0,
             "bad_commands": 0,
             "controller_away_steps": 0,
+            "paused_steps": 0,
             "panel_faults": 0,
             "bad_faults": 0,
         }
@@ -157,13 +166,18 @@ class EnvironmentService:
 
     def run(self) -> int:
         """Propagate to the end of the mission (or a stop request, or a re-entry); returns 0
-        if the mission completed, 3 if not."""
+        if the mission completed, 3 if not, HANG_STATUS if lock-step hung on a service."""
         run, truth, counters = self.run_cfg, self.truth, self.counters
         state = truth.state
         self.publish_sample(0.0, state, self.attitudes(state[None])[0], final=self.t_end <= 0)
         t_k = 0.0
         while t_k < self.t_end - 1e-6 and not self.ctx.stop.is_set():
-            self.take_commands(t_k, wait=run.mode == "lockstep")
+            try:
+                self.take_commands(t_k, wait=run.mode == "lockstep")
+            except HangError as exc:
+                self.ctx.log("error", str(exc), t_k)
+                self.ctx.publish_stats(t_k, {**counters, "completed": 0})
+                return HANG_STATUS
             self.apply_panel_faults(t_k)
             t_next = t_k + self.fsw
             try:
@@ -234,14 +248,23 @@ class EnvironmentService:
 
     def take_commands(self, t_k: float, wait: bool) -> None:
         """Apply the newest command of each deputy that its link has delivered by t_k; in
-        lock-step wait until the one for the step its delay maps to is accounted for."""
+        lock-step wait until the one for the step its delay maps to is accounted for: the
+        mission pauses for a controller that is there but silent (said after
+        run.command_deadline), up to the hang timeout (``HangError``)."""
         self.ctx.bus.pump(t_k)  # release what the links held until t_k
         deputies, counters = self.deputies, self.counters
         expected = {sc: self.expected_step(sc, t_k) for sc in deputies}
-        deadline = time.monotonic() + self.run_cfg.command_deadline
+        waiting = Waiting(self.run_cfg.command_deadline, self.run_cfg.hang_timeout + HANG_MARGIN)
         while not self.ctx.stop.is_set():
-            outstanding = any(self.outstanding(sc, t_k, expected[sc]) for sc in deputies)
-            waits = [deadline] if outstanding else []
+            late = [sc for sc in deputies if self.outstanding(sc, t_k, expected[sc])]
+            if wait and late and waiting.said_at(time.monotonic()):
+                counters["paused_steps"] += 1
+                names = ", ".join(f"ctrl-{sc}" for sc in late)
+                self.ctx.log("warning", f"lock-step paused at t = {t_k:.0f} s: no command from "
+                             f"{names} for {waiting.said:g} s", t_k)  # fmt: skip
+            if wait and late and waiting.over(time.monotonic()):
+                raise HangError(f"ctrl-{late[0]}", "command", t_k, self.run_cfg.hang_timeout)
+            waits = [waiting.until] if late else []
             waits += [u for sc in deputies if (u := self.returning(sc)) is not None]
             try:
                 if wait and waits:
@@ -254,11 +277,15 @@ class EnvironmentService:
             except queue.Empty:
                 if wait and waits and min(waits) > time.monotonic():
                     continue
+                if wait and late:
+                    continue  # the hang timeout decides
                 break
             if kind == _PANEL:
                 self.on_fault(msg)
             elif kind == _PRESENCE:
                 self.on_presence(*msg, t_k)
+            elif kind == _LOST:
+                self.on_lost(msg, expected)
             else:
                 self.on_command(kind, msg, expected)
         if wait:
@@ -307,6 +334,14 @@ class EnvironmentService:
         counters["clipped_commands"] += int(np.any(clipped != s_cmd))
         self.sigma[i] = clipped
         self.latest_for_t[sc] = for_t
+
+    def on_lost(self, topic: str, expected: dict[str, float]) -> None:
+        """Its publisher flooded ``topic`` past its rate budget: the command the step waits
+        for may be among what was dropped unread, so it is taken as lost, as on its link (the
+        deputy holds its last command; counted missing)."""
+        sc = topic.removeprefix("cmd/").removesuffix("/att")
+        if sc in self.seen_for_t:
+            self.seen_for_t[sc] = max(self.seen_for_t[sc], expected[sc])
 
     def on_presence(self, sc: str, up: bool, t_k: float) -> None:
         """A controller's liveliness token came or went during the step at t_k."""

@@ -35,6 +35,8 @@ from services.bus import (
     BusSettings,
     LinkRule,
     LinkSpec,
+    RateBudget,
+    budget_for,
     impairs_truth,
     open_session,
     wait_for_alive,
@@ -169,14 +171,21 @@ def mission_window(dep: Deployment) -> tuple[float, float]:
     return -margin, duration(dep) + margin
 
 
+def rate_budget(dep: Deployment, run: str) -> RateBudget:
+    """What a service takes from each publisher of ``run`` (``services.bus.budget``)."""
+    r = dep.run
+    return budget_for(f"ddvi/{run}/", r.nav_period, r.fsw_period, r.status_every)
+
+
 def bus_settings(dep: Deployment, hub: str, credentials: Credentials | None = None) -> BusSettings:
-    connect = [hub, *dep.bus.connect]
+    connect, lease = [hub, *dep.bus.connect], dep.session_lease_ms()
     if credentials is not None:  # a secure bus: the hub's client, listening on nothing
         return BusSettings(mode="client", listen=[], connect=connect, user=credentials.user,
-                           password=credentials.password, tls=credentials.tls)  # fmt: skip
+                           password=credentials.password, tls=credentials.tls,
+                           lease_ms=lease)  # fmt: skip
     if dep.bus.mode == "client":
-        return BusSettings(mode="client", listen=[], connect=connect)
-    return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
+        return BusSettings(mode="client", listen=[], connect=connect, lease_ms=lease)
+    return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect, lease_ms=lease)
 
 
 def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
@@ -232,6 +241,7 @@ def run_service(
             link_clock="sim" if dep.run.mode == "lockstep" else "wall",
             seed=dep.run.seed,
             time_window=mission_window(dep),
+            budget=rate_budget(dep, args.run),
         )
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)

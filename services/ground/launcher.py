@@ -15,6 +15,7 @@ SERVICE``): the named service is killed with SIGKILL, a crash.  Outputs: ``stats
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime
 import json
 import os
@@ -31,6 +32,7 @@ from typing import IO, Any
 
 from services.bus import Bus, BusSettings, open_session, queue_handler
 from services.config import Deployment
+from services.flight.health import HANG_STATUS
 from services.ground import credentials, lifecycle
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
@@ -270,8 +272,9 @@ class Launcher:
         hosts = range(len(self.dep.host))
         listen = [self.hub] + [f"tcp/{hub_address(k)}:{self.port}" for k in hosts]
         # bus.json and, on a secure bus, every participant's credentials in the run folder
-        self._hub: BusSettings = credentials.hub_settings(
-            self.dep, self.run, self.out, listen, self.dep.services
+        self._hub: BusSettings = dataclasses.replace(
+            credentials.hub_settings(self.dep, self.run, self.out, listen, self.dep.services),
+            lease_ms=self.dep.session_lease_ms(),  # a frozen client keeps its hub (docs/health.md)
         )
         if not self.dep.bus.security:
             self.say(  # said even with --quiet: an open bus is never silent
@@ -325,6 +328,8 @@ class Launcher:
                     self._kill(bus, msg.body["target"], msg.t)
             for name, p in list(self.procs.items()):
                 rc = p.popen.poll()
+                if rc == HANG_STATUS:
+                    return self._hung(name)
                 if rc in (None, 0) or name == "environment":
                     continue
                 policy = self.dep.restart_policy(name)
@@ -342,10 +347,22 @@ class Launcher:
                 self.monitor_died = name == "monitor"
                 return 1
             time.sleep(0.2)
+        if env.returncode == HANG_STATUS:
+            return self._hung("environment")
         if env.returncode != 0:
             self.say(f"environment exited with status {env.returncode}; see its log", error=True)
             return 1
         return self._await_report(monitor, started)
+
+    def _hung(self, name: str) -> int:
+        """``name`` gave up a lock-step wait (run.hang_timeout): end the run, with its word on
+        which service is hung (docs/health.md)."""
+        log = self.out / "logs" / f"{name}.log"
+        said = [line for line in lifecycle.last_lines(log) if " is hung" in line]
+        why = said[-1].split(" ERROR ", 1)[-1] if said else f"see {log}"
+        self.say(f"{why}; {name} gave up waiting (run.hang_timeout): the run is ended",
+                 error=True)  # fmt: skip
+        return lifecycle.EXIT_FAILED
 
     def _await_report(self, monitor: subprocess.Popen, started: float) -> int:
         """Wait for the monitor's report (60 s at most); the run's verdict from it."""

@@ -7,8 +7,8 @@ Exit statuses of ``ddvi run`` (docs/faults.md, "Stopping a run"):
     1    it failed: a service died, the mission ended early (a re-entry, a final clock from
          anyone but the environment), or no report was written
     2    bad input: the deployment, the output folder or the bus settings (one line says which)
-    3    the mission completed, but commands were refused, stale or missing (the report counts
-         them)
+    3    the mission completed, but commands were refused, stale or missing, a publisher flooded
+         its receivers, or a controller flew the safe attitude (the report counts them)
     128+N  stopped by signal N (130 SIGINT, 129 SIGHUP, 143 SIGTERM); the partial report is
          written
 """
@@ -27,6 +27,7 @@ from typing import Any
 import zenoh
 
 from services.bus import watch_alive
+from services.ground.outcome import flood_text
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_DEGRADED = 0, 1, 2, 3
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
@@ -170,12 +171,22 @@ def verdict(summary: Mapping[str, Any]) -> tuple[int, str]:
     out = summary.get("outcome", {})
     problems = command_problems(out.get("commands", {}))
     said = ", ".join(f"{v} {k}" for k, v in problems.items())
+    health = []
+    if found := out.get("flooded"):
+        health.append(f"flooded by {flood_text(found)}")
+    if safe := out.get("health", {}).get("safe_attitude_steps"):
+        health.append("safe attitude flown by " + ", ".join(
+            f"{name} ({n} steps)" for name, n in sorted(safe.items())))  # fmt: skip
+    if health:
+        said = "; ".join(([f"commands were {said}"] if said else []) + health)
     ended_by = out.get("ended_by")
     if not summary.get("completed", False):
         why = f" (ended by {ended_by})" if ended_by else ""
         orbits = summary.get("orbits", 0.0)
-        tail = f"; commands: {said}" if said else ""
+        tail = f"; {said if health else 'commands: ' + said}" if said else ""
         return EXIT_FAILED, f"mission INCOMPLETE at {orbits:.2f} orbits{why}{tail}"
+    if health:
+        return EXIT_DEGRADED, f"mission completed, but {said} (exit status 3)"
     if problems:
         return EXIT_DEGRADED, f"mission completed, but commands were {said} (exit status 3)"
     return EXIT_OK, "mission completed"

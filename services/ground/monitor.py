@@ -7,7 +7,9 @@ Run by the launcher, first of all services::
 It subscribes to ``ddvi/<run>/**`` with a raw zenoh subscriber (not ``Bus.subscribe``, so that
 undecodable payloads are recorded too) and to the run's liveliness tokens, and writes
 ``DIR/recording.mcap`` (``services.ground.recording``; a batch,
-``services.interface.unpack_batch``, message by message).
+``services.interface.unpack_batch``, message by message).  A sample past its key's rate budget
+(``services.bus.budget``) is dropped in the subscriber's callback, unread and unqueued, and
+counted (``flooded``, ``flood.<publisher>``): a flood never puts the monitor behind.
 
 A message whose (publisher, topic, seq) was seen already, or is older than the receiver's
 sequence window (``services.bus.SequenceGuard``), is recorded but kept out of the report and
@@ -49,7 +51,7 @@ from typing import Any
 
 import zenoh
 
-from services.bus import SEQUENCE_REASONS, SequenceGuards
+from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards
 from services.flight.runtime import ServiceContext, run_service
 from services.ground.recording import RECORDING, Recorder
 from services.ground.report import warm_up, write_report
@@ -64,6 +66,9 @@ DRAW_PERIOD = 0.5  # s between live status refreshes
 FINAL_WAIT = 5.0  # s to wait for the other services' final stats after the final clock
 FINAL_GRACE = 0.25  # s to keep recording once every service has finished
 STOP_DRAIN = 1.0  # s to keep recording what is already queued after SIGTERM
+# s to record what is still queued once the subscribers are gone: the recording must be closed
+# (its summary and footer written) well within the launcher's report grace, whatever the backlog
+CLOSE_DRAIN = 10.0
 FINAL_STATS_WAIT = 0.5  # s to wait for the monitor's own final stats to loop back
 # The monitor is the ground: it records and reports, and no step of the flight loop waits on
 # it. Its main thread yields the CPU to the flight services, and takes what arrived in batches
@@ -184,6 +189,14 @@ class Monitor:
             log.exception("could not use %s at t = %s", key, msg.t)
         self.counters["recorded"] = rec.messages
 
+    def count_floods(self) -> None:
+        """The budget's drops into the counters (``flooded``, ``flood.<publisher>``)."""
+        budget = self.ctx.bus.budget
+        if budget is not None:
+            flood = budget.counters()
+            self.counters["flooded"] = sum(flood.values())
+            self.counters.update(flood)
+
     def done(self, service: str) -> bool:
         """After the final clock: has ``service`` finished? A service seen alive is finished
         when its liveliness token is gone (it publishes its final stats before leaving); one
@@ -200,12 +213,34 @@ class Monitor:
         return [s for s in self.others if not self.done(s)]
 
 
-def _subscribe(session: zenoh.Session, run: str, inbox: Inbox) -> tuple[Any, Any]:
-    """The raw data subscriber and the liveliness subscriber, feeding ``inbox``."""
+def _advance(budget: RateBudget, payload: bytes) -> None:
+    """The budget's simulated time from a clock payload (the time master's only)."""
+    try:
+        for part in unpack_batch(payload) or (payload,):
+            msg = decode(part, "clock")
+            if msg.src == TIME_MASTER:
+                budget.advance(msg.t)
+    except MessageError:
+        pass  # recorded and refused by the main loop
+
+
+def _subscribe(
+    session: zenoh.Session, run: str, inbox: Inbox, budget: RateBudget | None = None
+) -> tuple[Any, Any]:
+    """The raw data subscriber and the liveliness subscriber, feeding ``inbox``; with a
+    ``budget``, a sample past its key's is dropped here, unread and unqueued (counted in the
+    budget): a flood neither grows the queue nor delays the recording."""
+    clock_key = f"ddvi/{run}/{topics.CLOCK}"
 
     def on_data(sample: zenoh.Sample) -> None:
         try:
-            inbox.put((_DATA, str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+            key, payload = str(sample.key_expr), sample.payload.to_bytes()
+            if budget is not None:
+                if key == clock_key:
+                    _advance(budget, payload)
+                if not budget.take(key, payload):
+                    return
+            inbox.put((_DATA, key, payload, time.time_ns()))
         except Exception:  # a zenoh callback must never raise
             log.exception("monitor: could not queue a sample")
 
@@ -292,6 +327,7 @@ def _record(
             mon.recorder.flush()
             last_flush = now
         if now - last_draw >= DRAW_PERIOD:
+            mon.count_floods()
             status.update(mon.counters)
             last_draw = now
         completed = ending.check(mon, ctx.stop.is_set(), idle=item is None, now=now)
@@ -303,11 +339,18 @@ def _close(subs: tuple[Any, Any], mon: Monitor, inbox: Inbox, status: Status | N
     """Undeclare the subscribers, record what arrived before, close the status and the file."""
     for sub in subs:
         sub.undeclare()
-    while mon.recorder is not None:  # whatever arrived before the undeclare
+    deadline = time.monotonic() + CLOSE_DRAIN
+    while mon.recorder is not None:  # whatever arrived before the undeclare (bounded)
         try:
-            mon.handle(inbox.get_nowait())
+            item = inbox.get_nowait()
         except queue.Empty:
             break
+        if time.monotonic() > deadline:  # a backlog: the recording is closed whole instead
+            mon.counters["unrecorded"] = mon.counters.get("unrecorded", 0) + 1 + inbox.qsize()
+            log.error("%d queued samples not recorded: closing the recording in time",
+                      mon.counters["unrecorded"])  # fmt: skip
+            break
+        mon.handle(item)
     if status is not None:
         status.close(mon.counters)
     if mon.recorder is not None:
@@ -316,6 +359,7 @@ def _close(subs: tuple[Any, Any], mon: Monitor, inbox: Inbox, status: Status | N
 
 def _final_stats(ctx: ServiceContext, mon: Monitor, inbox: Inbox) -> None:
     """Publish the monitor's own stats and record them too (they loop back locally)."""
+    mon.count_floods()
     try:
         ctx.publish_stats(mon.data.sim_t, mon.counters)
     except Exception:
@@ -378,7 +422,7 @@ def _main(ctx: ServiceContext) -> int:
     inbox: Inbox = queue.SimpleQueue()
     # Subscribe before anything else: the launcher starts the other services once it sees
     # this process alive.
-    subs = _subscribe(ctx.bus.session, ctx.run, inbox)
+    subs = _subscribe(ctx.bus.session, ctx.run, inbox, ctx.bus.budget)
     os.nice(NICENESS)  # this thread and those it starts later; not the callback's, started
     ctx.ready()
     mon = Monitor(ctx)

@@ -11,6 +11,11 @@ which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.ve
                 window), did not apply as older than the one in force, did not have at a step,
                 or had too late
     refused_clocks  clock messages from anyone but the environment, recorded and not obeyed
+    flooded     {publisher: {receiver: n}}: messages a receiver dropped unread, past the
+                publisher's rate budget (``services.bus.budget``): the publisher flooded
+    health      {"safe_attitude_steps": {controller: n}, "paused_steps": n}: real-time steps a
+                controller flew the safe attitude (its navigation too old), lock-step steps
+                the mission paused for a silent controller (docs/health.md)
 """
 
 from __future__ import annotations
@@ -58,7 +63,35 @@ def outcome(
         "planned_orbits": duration / period if period > 0 else 0.0,
         "commands": commands,
         "refused_clocks": int(monitor.get("refused.clock", 0) or 0),
+        "flooded": flooded({**services, "monitor": monitor}),
+        "health": {
+            "safe_attitude_steps": {
+                name: n
+                for name, counters in services.items()
+                if (n := int(counters.get("safe_attitude_steps", 0) or 0))
+            },
+            "paused_steps": int(env.get("paused_steps", 0) or 0),
+        },
     }
+
+
+def flooded(receivers: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, int]]:
+    """{publisher: {receiver: messages dropped}} from the receivers' ``flood.<publisher>``
+    counters, those not zero."""
+    out: dict[str, dict[str, int]] = {}
+    for receiver, counters in receivers.items():
+        for key, n in counters.items():
+            if key.startswith("flood.") and int(n or 0) > 0:
+                out.setdefault(key.removeprefix("flood."), {})[receiver] = int(n)
+    return out
+
+
+def flood_text(found: Mapping[str, Mapping[str, int]]) -> str:
+    """One phrase naming each flooding publisher and the most any receiver dropped of it."""
+    return ", ".join(
+        f"{pub} ({max(by.values())} messages dropped at {', '.join(sorted(by))})"
+        for pub, by in sorted(found.items())
+    )
 
 
 def outcome_lines(out: Mapping[str, Any]) -> list[str]:
@@ -82,6 +115,16 @@ def outcome_lines(out: Mapping[str, Any]) -> list[str]:
         lines.append(f"- commands: **{said}** (ddvi run exits 3 for a completed mission)")
     else:
         lines.append("- commands: none refused, stale, missing or late")
+    if found := out.get("flooded"):
+        lines.append(f"- **flooded by {flood_text(found)}**: past its rate budget, dropped "
+                     "unread (ddvi run exits 3)")  # fmt: skip
+    health = out.get("health", {})
+    if safe := health.get("safe_attitude_steps"):
+        said = ", ".join(f"{name} {n}" for name, n in sorted(safe.items()))
+        lines.append(f"- **safe attitude flown** (navigation too old): {said} steps")
+    if health.get("paused_steps"):
+        lines.append(f"- lock-step paused {health['paused_steps']} times for a silent "
+                     "controller (run.command_deadline); the mission waited for it")  # fmt: skip
     if out.get("refused_clocks"):
         lines.append(
             f"- **{out['refused_clocks']} clock messages refused**: not from the environment "

@@ -60,8 +60,7 @@ HEADERS = {
 
 NOTES = {
     "links": "dropped, delayed: by this deputy's controller's links and the environment's "
-    "command links (all deputies); late, missing: the environment's commands, all deputies "
-    "(a learning attempt longer than run.command_deadline also makes them).",
+    "command links (all deputies); late, missing: the environment's commands, all deputies.",
     "noise": "nav noise: each deputy's navigation.position_noise (m, 1 sigma per axis), "
     "velocity_noise = {ratio:g} (m/s)/m times it; mismatch f: the truth's density_factor and "
     "every deputy's area_factor f times the deployment's; note: why a deputy cannot hold its "

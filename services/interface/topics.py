@@ -152,6 +152,10 @@ class Route:
     publishers: tuple[str, ...]
     subscribers: tuple[str, ...]
     rate: str
+    # the rate as a period its receivers budget each publisher by (services.bus.budget):
+    # "nav" (run.nav_period, or a deputy's shorter one), "fsw" (run.fsw_period), "status"
+    # (run.status_every flight-software steps); at most one message a period, sustained
+    budget: str = "nav"
 
 
 TOPOLOGY: tuple[Route, ...] = (
@@ -162,6 +166,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("nav-<sc>", "ctrl-<sc>", "monitor", "ground-<pid>"),
         "every flight-software step (run.fsw_period) in lock-step, every navigation sample "
         "(run.nav_period) in real time, and a final one",
+        budget="nav",
     ),
     Route(
         EXOSTATE,
@@ -191,6 +196,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ctrl-<sc>",),
         ("environment", "monitor"),
         "every flight-software step (run.fsw_period)",
+        budget="fsw",
     ),
     Route(
         gains_topic("<sc>"),
@@ -198,6 +204,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ctrl-<sc>",),
         ("monitor",),
         "at the start, every flight-software step while exploring, on learning, and at the end",
+        budget="fsw",
     ),
     Route(
         status_topic("<sc>"),
@@ -205,6 +212,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ctrl-<sc>",),
         ("monitor",),
         "every run.status_every flight-software steps, and at the end",
+        budget="status",
     ),
     Route(
         fault_topic("kill"),
@@ -212,6 +220,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ground-<pid>",),
         ("launcher", "monitor"),
         "on an operator's command (ddvi fault RUN kill)",
+        budget="fsw",
     ),
     Route(
         fault_topic("panel"),
@@ -219,6 +228,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ground-<pid>",),
         ("environment", "monitor"),
         "on an operator's command (ddvi fault RUN panel)",
+        budget="fsw",
     ),
     Route(
         fault_topic("bias"),
@@ -226,6 +236,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ground-<pid>",),
         ("nav-<sc>", "monitor"),
         "on an operator's command (ddvi fault RUN bias)",
+        budget="fsw",
     ),
     Route(
         fault_topic("link"),
@@ -233,6 +244,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ground-<pid>",),
         _FLIGHT_RUNTIME,
         "on an operator's command (ddvi fault RUN link)",
+        budget="fsw",
     ),
     Route(
         stats_topic("<service>"),
@@ -241,6 +253,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("monitor",),
         "every run.status_every flight-software steps (environment, controllers), after every "
         "restart or kill (launcher), and at each service's end",
+        budget="status",
     ),
     Route(
         log_topic("<service>"),
@@ -323,3 +336,48 @@ def may_publish(service: str, topic: str) -> bool | None:
             if _topic_pattern(_fill(route.topic, names).replace("*", "<any>")).fullmatch(topic):
                 return True
     return False if owned else None
+
+
+@functools.lru_cache(maxsize=1)
+def _route_patterns() -> tuple[tuple[re.Pattern[str], Route], ...]:
+    """Each TOPOLOGY topic as a regular expression with a named group per placeholder."""
+    out = []
+    for route in TOPOLOGY:
+        parts = _PLACEHOLDER.split(route.topic)
+        regex = "".join(
+            re.escape(p) if i % 2 == 0 else f"(?P<{p}>[^/]+)" for i, p in enumerate(parts)
+        )
+        out.append((re.compile(regex), route))
+    return tuple(out)
+
+
+def _route_of(topic: str) -> tuple[Route, dict[str, str]] | None:
+    for pattern, route in _route_patterns():
+        if (match := pattern.fullmatch(topic)) is not None:
+            return route, match.groupdict()
+    return None
+
+
+@functools.lru_cache(maxsize=4096)  # a run's topics: a few dozen
+def budget_period(topic: str) -> str | None:
+    """The period a receiver budgets ``topic`` by (``Route.budget``), None outside the
+    topology."""
+    found = _route_of(topic)
+    return None if found is None else found[0].budget
+
+
+@functools.lru_cache(maxsize=4096)
+def publisher_of(topic: str) -> str | None:
+    """The one service that may publish ``topic`` (e.g. ``ctrl-lqr`` for ``cmd/lqr/att``,
+    ``nav-lqr`` for ``stats/nav-lqr``); ``ground`` for a ground command's; None for a topic
+    outside the topology."""
+    found = _route_of(topic)
+    if found is None:
+        return None
+    route, names = found
+    if "service" in names:
+        return names["service"]
+    template = route.publishers[0]
+    if len(route.publishers) > 1 or "<pid>" in template:
+        return template.split("-<", 1)[0]
+    return _PLACEHOLDER.sub(lambda m: names.get(m.group(1), m.group(0)), template)

@@ -34,6 +34,8 @@ BAD_VALUES: dict[str, list[Any]] = {
     "run.rate": [0.0, INF],
     "run.command_deadline": [0.0, 1e9],
     "run.startup_timeout": [-1.0, 1e9],
+    "run.hang_timeout": [0.0, -1.0, NAN, 1e9],
+    "run.nav_stale_limit": [-1.0, INF],
     "run.seed": [-1, 2**40],
     "run.status_every": [0, -5],
     "environment.density_factor": [0.0, NAN, 1e300],
