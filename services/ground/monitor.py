@@ -100,6 +100,9 @@ class Monitor:
         # a clock from anyone but the environment (the time master) is recorded, never obeyed:
         # it must not end the mission nor move its time
         self.counters["refused.clock"] = 0
+        # a message its publisher may not send, or whose body names another deputy or service
+        # than its topic: recorded, never believed (services.ground.refusals)
+        self.counters["refused.origin"] = 0
         self.guards = SequenceGuards()
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
@@ -169,6 +172,10 @@ class Monitor:
             if n <= 10 or n % 1000 == 0:
                 log.warning("refused a clock from %r (only %s keeps time; #%d)", msg.src,
                             TIME_MASTER, n)  # fmt: skip
+            self.counters["recorded"] = rec.messages
+            return
+        if not self.data.refusals.accepts(topic, msg):  # its topic does not let it say that
+            self.counters["refused.origin"] += 1
             self.counters["recorded"] = rec.messages
             return
         if (why := self.guards.check(msg, topic)) is not None:

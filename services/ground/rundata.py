@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from ddvi_core.orbit import hill_frame, rv_to_hill
 from ddvi_core.truth import acceleration
 from services.config import Deployment, Deputy
+from services.ground.refusals import Refusals
 from services.interface import Message
 from services.model import duration, orbit_period
 
@@ -119,6 +120,7 @@ class RunData:
         self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
         self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
+        self.refusals = Refusals()  # messages believed of nobody: never ingested
         self.counts: dict[str, int] = {}  # decoded messages by schema
         self.first_ns: int | None = None
         self.last_ns: int | None = None
@@ -137,7 +139,7 @@ class RunData:
         self.last_ns = recv_ns
 
     def ingest(self, topic: str, msg: Message) -> None:
-        """Update the time series with one decoded message."""
+        """Update the time series with one decoded message (one ``refusals`` accepts)."""
         self.counts[msg.schema] = self.counts.get(msg.schema, 0) + 1
         b = msg.body
         if msg.schema == "clock":

@@ -152,7 +152,13 @@ class Route:
     publishers: tuple[str, ...]
     subscribers: tuple[str, ...]
     rate: str
+    identity: tuple[tuple[str, str], ...] = ()
+    """(body field, topic placeholder) pairs: the body's field must name what the topic names
+    (a command on ``cmd/<sc>/att`` is for deputy <sc>, whatever else its body says)."""
 
+
+_DEPUTY = (("sc", "sc"),)  # the body's deputy is the topic's
+_SERVICE = (("service", "service"),)  # the body's service is the topic's (its publisher)
 
 TOPOLOGY: tuple[Route, ...] = (
     Route(
@@ -177,6 +183,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("nav-<sc>", "monitor"),
         "every navigation sample (run.nav_period), for the chief and every deputy; "
         "nav-<sc> takes truth/chief and truth/<sc>",
+        identity=(("sc", "craft"),),
     ),
     Route(
         nav_state_topic("<sc>"),
@@ -184,6 +191,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("nav-<sc>",),
         ("ctrl-<sc>", "monitor"),
         "every navigation sample of the deputy (its navigation.period)",
+        identity=_DEPUTY,
     ),
     Route(
         command_topic("<sc>"),
@@ -191,6 +199,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ctrl-<sc>",),
         ("environment", "monitor"),
         "every flight-software step (run.fsw_period)",
+        identity=_DEPUTY,
     ),
     Route(
         gains_topic("<sc>"),
@@ -198,6 +207,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ctrl-<sc>",),
         ("monitor",),
         "at the start, every flight-software step while exploring, on learning, and at the end",
+        identity=_DEPUTY,
     ),
     Route(
         status_topic("<sc>"),
@@ -205,6 +215,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ctrl-<sc>",),
         ("monitor",),
         "every run.status_every flight-software steps, and at the end",
+        identity=_DEPUTY,
     ),
     Route(
         fault_topic("kill"),
@@ -241,6 +252,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("monitor",),
         "every run.status_every flight-software steps (environment, controllers), after every "
         "restart or kill (launcher), and at each service's end",
+        identity=_SERVICE,
     ),
     Route(
         log_topic("<service>"),
@@ -248,6 +260,7 @@ TOPOLOGY: tuple[Route, ...] = (
         _EVERY_SERVICE,
         ("monitor", "ground-<pid>"),
         "on an event: a fault acted on, a learning outcome, a warning",
+        identity=_SERVICE,
     ),
 )
 """Every topic below ``ddvi/<run>/``: its schema, publishers, subscribers and rate.  The
@@ -323,3 +336,33 @@ def may_publish(service: str, topic: str) -> bool | None:
             if _topic_pattern(_fill(route.topic, names).replace("*", "<any>")).fullmatch(topic):
                 return True
     return False if owned else None
+
+
+@functools.lru_cache(maxsize=256)
+def _identity_pattern(template: str) -> re.Pattern[str]:
+    """A TOPOLOGY topic template as a regular expression, one named group per placeholder."""
+    parts = _PLACEHOLDER.split(template)
+    return re.compile(
+        "".join(re.escape(p) if i % 2 == 0 else f"(?P<{p}>[^/]+)" for i, p in enumerate(parts))
+    )
+
+
+@functools.lru_cache(maxsize=4096)  # the topics of a run: a few dozen; garbage may add more
+def topic_identity(topic: str) -> tuple[tuple[str, str], ...]:
+    """The (body field, value) pairs a message on ``topic`` must carry: what the topic names
+    (``cmd/lqr/att``: ``(("sc", "lqr"),)``; ``stats/nav-lqr``: ``(("service", "nav-lqr"),)``);
+    () for a topic whose body names nobody, or one outside the topology."""
+    for route in TOPOLOGY:
+        match = _identity_pattern(route.topic).fullmatch(topic)
+        if match is not None:
+            return tuple((field, match.group(name)) for field, name in route.identity)
+    return ()
+
+
+def identity_mismatch(topic: str, body: object) -> str | None:
+    """The first identity field of ``body`` that is not what ``topic`` names (``topic_identity``),
+    None when every one is."""
+    for field, value in topic_identity(topic):
+        if not isinstance(body, dict) or body.get(field) != value:
+            return field
+    return None

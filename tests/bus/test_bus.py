@@ -35,9 +35,9 @@ from tests.support import unique_run_name, wait_until
 TIMEOUT = 5.0
 
 
-def nav_body(x: float = 0.0) -> dict[str, Any]:
+def nav_body(x: float = 0.0, sc: str = "deputy1") -> dict[str, Any]:
     return {
-        "sc": "deputy1",
+        "sc": sc,
         "x_hill": np.full(6, x),
         "z_hill": np.full(6, x),
         "cov": np.eye(6),
@@ -299,7 +299,7 @@ def test_deployment_link_rules_apply_per_publisher(
         rx.pump(sim_time=100.0)
         inbox.queue.clear()
         nav.publish("nav/deputy1/state", "nav", nav_body(1.0), t=200.0)
-        other.publish("nav/deputy2/state", "nav", nav_body(2.0), t=200.0)
+        other.publish("nav/deputy2/state", "nav", nav_body(2.0, "deputy2"), t=200.0)
         assert [seen.get(timeout=TIMEOUT)[1].src for _ in range(2)].count("nav-deputy1") == 1
         assert inbox.get(timeout=TIMEOUT)[1].src == "nav-deputy2"  # no rule: straight through
         assert inbox.empty()
@@ -462,7 +462,7 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
         svc.put(key, old, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_until(lambda: rx.counters["rejected.stale"] == 1)
         for _ in range(5):  # at t = 0: due at once, each with its copy
-            tx2.publish("nav/deputy2/state", "nav", nav_body(4.0), t=0.0)
+            tx2.publish("nav/deputy2/state", "nav", nav_body(4.0, "deputy2"), t=0.0)
         assert [dups.get(timeout=TIMEOUT)[1].seq for _ in range(5)] == list(range(5))
         assert wait_until(lambda: rx.counters["rejected.duplicate"] == 1 + 5)
         c = rx.counters
