@@ -116,7 +116,7 @@ def _topics_section() -> list[str]:
         "Below `ddvi/<run>/`. The monitor subscribes to every key of the run (`ddvi/<run>/**`) "
         "and records what it receives. Every receiver, the monitor included, refuses a message "
         "whose `src` is not one of its topic's publishers, or whose body's identity field is not "
-        "what its topic names (a command on `cmd/lqr/att` naming `sc = \"ddvi\"`), before it "
+        'what its topic names (a command on `cmd/lqr/att` naming `sc = "ddvi"`), before it '
         "touches any state; it counts the refusal (`rejected.src`, `rejected.identity`).",
         "",
         *_table(("topic", "schema", "publishers", "subscribers", "body names", "rate"), rows),
