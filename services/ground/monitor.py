@@ -26,8 +26,8 @@ liveliness token has been gone ``GONE`` s (a crashed service: a token's undeclar
 overtake the data put just before it, so a token alone does not end the recording). Messages
 from different publishers are not ordered with respect to each other, so a service's final
 stats may arrive before the final clock; what arrives within ``FINAL_GRACE`` s after the
-last service finished is still recorded. SIGTERM before that closes the recording and writes a partial report
-(``"completed": false``), also exit 0.
+last service finished is still recorded. SIGTERM before that closes the recording and writes
+a partial report (``"completed": false``), also exit 0.
 
 Live status: ``services.ground.status``, refreshed every ``DRAW_PERIOD`` s.
 """
