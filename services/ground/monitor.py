@@ -209,7 +209,6 @@ class Monitor:
         gone = self.gone_at.get(service)
         return gone is not None and service not in self.alive and time.monotonic() - gone >= GONE
 
-
     def pending(self) -> list[str]:
         """The other services not finished yet."""
         return [s for s in self.others if not self.done(s)]
