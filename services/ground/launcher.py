@@ -196,7 +196,7 @@ class Launcher:
         except OSError as exc:
             if made:
                 shutil.rmtree(self.out, ignore_errors=True)
-            why = exc.strerror or str(exc)
+            why = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else exc
             self.say(f"cannot create the run folder {self.out} ({why}); choose "
                      "another with --output or run.output", error=True)  # fmt: skip
             return lifecycle.EXIT_USAGE
