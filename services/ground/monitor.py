@@ -21,7 +21,7 @@ On a normal stop and on SIGTERM the writer is closed (summary and footer written
 When the ``clock`` message with ``final = true`` arrives the monitor waits until every other
 service of the deployment has finished or ``FINAL_WAIT`` s pass, then closes the recording,
 writes the report (``services.ground.report``) and exits 0. A service has finished when its
-stats for the final time are in (published after its last data, they arrive behind it), or its
+final stats are in (its last message: they arrive behind all it put before), or its
 liveliness token has been gone ``GONE`` s (a crashed service: a token's undeclaration can
 overtake the data put just before it, so a token alone does not end the recording). Messages
 from different publishers are not ordered with respect to each other, so a service's final
@@ -134,6 +134,7 @@ class Monitor:
             if value:
                 self.alive.add(name)
                 self.ever_alive.add(name)
+                self.data.finished.discard(name)  # restarted: its final stats are to come
             else:
                 self.alive.discard(name)
                 self.gone_at[name] = time.monotonic()
@@ -196,14 +197,17 @@ class Monitor:
         self.counters["recorded"] = rec.messages
 
     def done(self, service: str) -> bool:
-        """After the final clock: has ``service`` finished? When its stats for the final time
-        are in (a service publishes them after its last data, and leaves), or its liveliness
-        token has been gone ``GONE`` s without them."""
+        """After the final clock: has ``service`` finished? When its final stats are in (a
+        service publishes them last, ``ServiceContext.publish_stats(final=True)``), or its
+        liveliness token has been gone ``GONE`` s without them; one never seen alive, when it
+        has sent stats for the final time."""
         d = self.data
         if not d.final_seen or d.final_t is None:
             return False
-        if d.stats_t.get(service, -math.inf) >= d.final_t - 1e-6:
+        if service in d.finished:
             return True  # its final stats: put after its last data, so behind it on the wire
+        if service not in self.ever_alive:
+            return d.stats_t.get(service, -math.inf) >= d.final_t - 1e-6
         # gone without them (a crash, a kill): its token's undeclaration can overtake the data
         # it put just before, so it has finished once gone a while
         gone = self.gone_at.get(service)
