@@ -169,12 +169,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     from services.config import DeploymentError, load_deployment
     from services.ground.launcher import Launcher
 
+    if args.output is not None and not args.output.strip():
+        print("ddvi run: --output is empty; give the folder runs are written to "
+              "(or leave it out for run.output)", file=sys.stderr)  # fmt: skip
+        return EXIT_USAGE
     try:
         dep = load_deployment(args.deployment)
     except DeploymentError as exc:
         print(f"ddvi run: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    return Launcher(dep, out_root=args.output, quiet=args.quiet).execute()
+    launcher = Launcher(dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode)
+    return launcher.execute()
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
@@ -202,6 +207,13 @@ def _run_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--output", default=None, help="override run.output (the runs folder)")
     p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
+    p.add_argument(
+        "--folder-mode",
+        type=folder_mode,
+        default=None,
+        help="the run folder's permissions, octal (default 0700, or run.folder_mode): 0750 "
+        "lets the folder's group read the recording and the report (docs/security.md)",
+    )
     p.set_defaults(func=cmd_run)
 
 
@@ -319,6 +331,22 @@ def seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
     if not 0 <= value < 2**32:
         raise argparse.ArgumentTypeError(f"a seed lies in 0 .. 2**32 - 1, got {value}")
+    return value
+
+
+def folder_mode(text: str) -> int:
+    """A run folder's mode, octal: its owner's rwx, its group's at most, nothing for others."""
+    try:
+        value = int(text, 8)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected an octal mode such as 0750, got {text!r}"
+        ) from None
+    if value & ~0o777 or value & 0o700 != 0o700 or value & 0o007:
+        raise argparse.ArgumentTypeError(
+            f"a run folder's mode gives its owner rwx and others nothing (0700, 0750, 0770), "
+            f"got {text}"
+        )
     return value
 
 

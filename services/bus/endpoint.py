@@ -52,8 +52,10 @@ MSGPACK_ENCODING = "application/msgpack"
 _LINK_COUNTERS = ("dropped", "duplicated", "reordered", "delayed")
 _ORIGIN_TEXT = {
     "src": "not this topic's publisher",
+    "identity": "its body names another than its topic does",
     "time": "a time outside the mission's window",
 }
+_SEQUENCE_TEXT = {"duplicate": "seen already", "stale": "older than its window"}
 
 Handler = Callable[[str, Message], None]
 """A subscription handler: ``handler(topic, message)``, topic relative to ``ddvi/<run>/``."""
@@ -98,6 +100,10 @@ class _Route:
     index: int = 0  # the subscription's number on its bus (seeds its link models)
     models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
     guards: SequenceGuards = field(default_factory=SequenceGuards)
+    # the same window on what comes off the wire, before the link and the observer: a replay
+    # is refused before it can touch a lock-step wait (the one above refuses what the link
+    # itself duplicates)
+    wire: SequenceGuards = field(default_factory=SequenceGuards)
     # re-entrant: a handler may change the bus's link rules (a run-time link fault)
     lock: threading.RLock = field(default_factory=threading.RLock)
     subscriber: Any = None
@@ -391,8 +397,16 @@ class Bus:
                 self.budget.advance(message.t)
         if not messages:
             return
+        fresh: list[Message] = []  # what passes the wire's replay window: all that acts
         try:
             with route.lock:
+                for message in messages:
+                    if (why := route.wire.check(message, topic)) is None:
+                        fresh.append(message)
+                    else:
+                        self._reject(key, why, f"seq {message.seq} from {message.src} at t = "
+                                     f"{message.t:g}: " + _SEQUENCE_TEXT[why])  # fmt: skip
+                messages = fresh
                 items: list[tuple[str, Message]] = []
                 direct = route.link is None and not self._rules  # no link to choose per message
                 for message in messages:
@@ -414,7 +428,7 @@ class Bus:
                 self._deliver(route, items, received=len(messages))
         finally:  # whatever happened above, each accepted message is accounted for
             if route.observe is not None:
-                for message in messages:
+                for message in fresh:
                     try:
                         route.observe(topic, message)
                     except Exception:
@@ -444,7 +458,7 @@ class Bus:
                     self.prefix + topic,
                     why,
                     f"seq {message.seq} from {message.src} at t = {message.t} "
-                    + ("seen already" if why == "duplicate" else "older than its window"),
+                    + _SEQUENCE_TEXT[why],
                 )
                 continue
             try:

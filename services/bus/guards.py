@@ -1,20 +1,20 @@
 """Receiver guards: the anti-replay window a subscriber keeps per (publisher, topic), so each
 message is delivered once whatever the link or an attacker repeats; and the origin check
-(``check_origin``), so that a message is taken only from its topic's owner and only for a time
-inside the mission's window."""
+(``check_origin``), so that a message is taken only from its topic's owner, only when its body
+names what its topic names, and only for a time inside the mission's window."""
 
 from __future__ import annotations
 
 import math
 
 from services.interface import Message
-from services.interface.topics import may_publish
+from services.interface.topics import identity_mismatch, may_publish
 
 REPLAY_WINDOW = 256
 """Sequence numbers a subscriber remembers per (publisher, topic) to reject duplicates."""
 SEQUENCE_REASONS = ("duplicate", "stale")
 """Why a well-formed message is refused by its sequence number (see ``SequenceGuard``)."""
-ORIGIN_REASONS = ("src", "time")
+ORIGIN_REASONS = ("src", "identity", "time")
 """Why a well-formed message is refused by its origin (see ``check_origin``)."""
 TIME_FIELDS = ("for_t",)
 """Body fields that are simulation times, checked against the time window as ``t`` is."""
@@ -25,11 +25,16 @@ def check_origin(
 ) -> str | None:
     """None (accept) or why ``message`` on ``topic`` is refused: ``"src"`` when its header
     ``src`` is not the topic's publisher per the topology (``may_publish``; a topic outside the
-    topology has no owner to check), ``"time"`` when its ``t`` or a body time (``TIME_FIELDS``,
-    e.g. a command's ``for_t``) lies outside ``window = (earliest, latest)`` s: a message "for"
-    a time the mission never reaches must not make the genuine traffic look stale."""
+    topology has no owner to check), ``"identity"`` when an identity field of its body (a
+    command's ``sc``, a stats message's ``service``) is not what its topic names
+    (``topics.identity_mismatch``): a publisher speaks only for what its topic owns; ``"time"``
+    when its ``t`` or a body time (``TIME_FIELDS``, e.g. a command's ``for_t``) lies outside
+    ``window = (earliest, latest)`` s: a message "for" a time the mission never reaches must
+    not make the genuine traffic look stale."""
     if may_publish(message.src, topic) is False:
         return "src"
+    if identity_mismatch(topic, message.body) is not None:
+        return "identity"
     if window is not None:
         lo, hi = window
         if not lo <= message.t <= hi:

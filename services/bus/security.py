@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import stat
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -74,12 +75,16 @@ class Credentials:
         return Credentials(user, secrets.token_urlsafe(32))
 
 
-def write_private(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` readable and writable by its owner only (0600), never
-    through a moment of wider permissions."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+_NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+
+
+def write_private(path: Path, text: str, mode: int = 0o600) -> None:
+    """Write ``text`` to a new file ``path`` with ``mode`` (0600: its owner's only) from its
+    first moment.  The file must not exist (``O_EXCL``, FileExistsError) nor be a symbolic link
+    (``O_NOFOLLOW``): what another user planted is never written into, or through."""
+    fd = os.open(path, _NEW_FILE, mode)
     try:
-        os.fchmod(fd, 0o600)
+        os.fchmod(fd, mode)
         os.write(fd, text.encode())
     finally:
         os.close(fd)
@@ -101,9 +106,19 @@ def load_credentials(path: Path | str) -> Credentials:
 
 
 def _private_folder(out: Path | str) -> Path:
+    """``out/security``, made 0700 now, or made so by this user before (TLS first): a folder
+    of that name that is anyone else's, wider, or a link is refused (PermissionError)."""
     folder = Path(out) / SECURITY_DIR
-    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    os.chmod(folder, 0o700)
+    try:
+        os.mkdir(folder, 0o700)
+        os.chmod(folder, 0o700)  # ours, just made: whatever the umask
+    except FileExistsError:
+        st = os.lstat(folder)
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+            raise PermissionError(
+                f"{folder}: exists and is not this user's private folder; credentials are "
+                "never written into it"
+            ) from None
     return folder
 
 

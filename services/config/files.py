@@ -65,6 +65,11 @@ def resolve(name_or_path: str | None) -> Path:
         if q.is_file():
             return q
     known = sorted({x.stem for folder in folders for x in folder.glob("*.toml")})
+    if p.is_dir():
+        raise DeploymentError(
+            f"{name_or_path}: is a directory, not a deployment file; give a .toml file in it "
+            "or a deployment name; known: " + ", ".join(known)
+        )
     near = difflib.get_close_matches(name_or_path, known, n=1)
     hint = f" (did you mean '{near[0]}'?)" if near else ""
     raise DeploymentError(

@@ -27,6 +27,7 @@ from services.bus.security import (
     issue_credentials,
     issue_tls,
     load_credentials,
+    write_private,
 )
 from services.config import Deployment
 
@@ -39,14 +40,14 @@ def hub_settings(
     dictionary and the access control on a secure bus, else what ``bus.mode`` says).
     ``listen``: the loopback endpoint, then one on each other host's link (made TLS on a
     secure bus, with the run's certificates)."""
-    out.mkdir(parents=True, exist_ok=True)
     secure = dep.bus.security
     hosts = [e.split("/", 1)[1].rsplit(":", 1)[0] for e in listen[1:]]
     if secure and hosts:
         listen = [listen[0], *(host_endpoint(dep, a, e.rsplit(":", 1)[1])
                                for a, e in zip(hosts, listen[1:], strict=True))]  # fmt: skip
     info = {"run": run, "hub": listen[0], "listen": listen, "security": secure}
-    (out / BUS_FILE).write_text(json.dumps(info, indent=1) + "\n")
+    # new, never through a link: a bus.json another user planted is refused, not followed
+    write_private(out / BUS_FILE, json.dumps(info, indent=1) + "\n", mode=0o644)
     connect = list(dep.bus.connect)
     if not secure:
         return BusSettings(mode="router" if dep.bus.mode == "client" else "peer",

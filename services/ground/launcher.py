@@ -36,6 +36,7 @@ from services.flight.health import HANG_STATUS
 from services.ground import credentials, lifecycle
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
+from services.ground.runfolder import FOLDER_MODE, make_run_folder
 from services.interface.topics import fault_topic, log_topic, stats_topic
 from services.model import holding_warnings
 
@@ -65,11 +66,19 @@ class Process:
 
 
 class Launcher:
-    def __init__(self, dep: Deployment, out_root: str | None = None, quiet: bool = False) -> None:
+    def __init__(
+        self,
+        dep: Deployment,
+        out_root: str | None = None,
+        quiet: bool = False,
+        folder_mode: int | None = None,
+    ) -> None:
         self.dep = dep
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-        self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"
-        self.out = Path(out_root or dep.run.output) / self.run
+        self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
+        self.root = Path(out_root or dep.run.output)
+        self.out = self.root / self.run
+        self.folder_mode = FOLDER_MODE if folder_mode is None else folder_mode
         self.port = dep.bus.port or free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
         self.procs: dict[str, Process] = {}
@@ -87,7 +96,6 @@ class Launcher:
     def start(self, name: str, join: bool = False) -> None:
         """Start one service; ``join``: a restart into the running mission (its log goes on)."""
         logs = self.out / "logs"
-        logs.mkdir(parents=True, exist_ok=True)
         log = open(logs / f"{name}.log", "ab" if join else "wb")  # noqa: SIM115 - see stop_all
         host = self.dep.host_of(name)
         hub = (
@@ -154,6 +162,8 @@ class Launcher:
         if refused is not None:
             self.say(refused, error=True)
             return lifecycle.EXIT_USAGE
+        if (status := self._make_folder()) is not None:
+            return status
         self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
         for warning in warnings:
             self.say(f"warning: {warning}")
@@ -175,25 +185,36 @@ class Launcher:
             self._recover()
         return self._after_stop(status)
 
-    def _open_and_fly(self) -> int:
-        """Make the run folder and open the hub's session (either failing: one line, status
-        2, and no run folder left), then fly the mission."""
-        started = time.monotonic()
-        made = not self.out.exists()
+    def _make_folder(self) -> int | None:
+        """Make the run folder exclusively (``runfolder.make_run_folder``: a name that exists
+        is never reused) with its bus.json and credentials; None, or (one line said, no run
+        folder left) status 2."""
+        made = False
         try:
-            self.out.mkdir(parents=True, exist_ok=True)
-            (self.out / "logs").mkdir(exist_ok=True)
+            self.run, self.out = make_run_folder(self.root, self.run, self.folder_mode)
+            made = True
+            (self.out / "logs").mkdir()
+            self._hub_settings()  # bus.json and the credentials, each a new file
         except OSError as exc:
-            self.say(f"cannot create the run folder {self.out} ({exc.strerror}); choose "
+            if made:
+                shutil.rmtree(self.out, ignore_errors=True)
+            why = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else exc
+            self.say(f"cannot create the run folder {self.out} ({why}); choose "
                      "another with --output or run.output", error=True)  # fmt: skip
             return lifecycle.EXIT_USAGE
+        return None
+
+    def _open_and_fly(self) -> int:
+        """Open the hub's session (failing: one line, status 2, and no run folder left), then
+        fly the mission."""
+        started = time.monotonic()
         with contextlib.ExitStack() as stack:
             try:
                 session = stack.enter_context(open_session(self._hub_settings()))
             except Exception as exc:  # zenoh.ZError: a port in use, an endpoint unreachable
                 first = (str(exc).splitlines() or [type(exc).__name__])[0]
-                if made:  # nothing ran: leave no empty run folder behind
-                    shutil.rmtree(self.out, ignore_errors=True)
+                # nothing ran: leave no run folder behind
+                shutil.rmtree(self.out, ignore_errors=True)
                 self.say(f"cannot open the bus (port {self.port}, connect "
                          f"{self.dep.bus.connect}): {first}; is bus.port in use, or a "
                          "bus.connect endpoint wrong?", error=True)  # fmt: skip

@@ -189,4 +189,11 @@ def verdict(summary: Mapping[str, Any]) -> tuple[int, str]:
         return EXIT_DEGRADED, f"mission completed, but {said} (exit status 3)"
     if problems:
         return EXIT_DEGRADED, f"mission completed, but commands were {said} (exit status 3)"
+    if refused := out.get("refused"):
+        whom = ", ".join(sorted({f"{r['topic']} from {r['src']}" for r in refused})[:5])
+        n = sum(r["count"] for r in refused)
+        return (
+            EXIT_DEGRADED,
+            f"mission completed, but {n} messages were refused ({whom}) (exit status 3)",
+        )
     return EXIT_OK, "mission completed"

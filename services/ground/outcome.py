@@ -16,11 +16,14 @@ which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.ve
     health      {"safe_attitude_steps": {controller: n}, "paused_steps": n}: real-time steps a
                 controller flew the safe attitude (its navigation too old), lock-step steps
                 the mission paused for a silent controller (docs/health.md)
+    refused     the messages the ground refused to believe, by publisher, topic and reason
+                (``services.ground.refusals``): a topic its publisher may not send, or a body
+                naming another deputy or service than its topic
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 TIME_MASTER = "environment"
@@ -42,10 +45,11 @@ def outcome(
     period: float,
     services: Mapping[str, Mapping[str, Any]],
     monitor: Mapping[str, Any],
+    refused: Sequence[Mapping[str, Any]] = (),
 ) -> dict[str, Any]:
     """The outcome block: how the run ended (``sim_t`` s of ``duration``, orbit ``period``
     s) and the command problems counted by the environment in ``services`` (service ->
-    counters); ``monitor``: the monitor's counters."""
+    counters); ``monitor``: the monitor's counters; ``refused``: ``Refusals.summary()``."""
     env = services.get(TIME_MASTER, {})
     commands = {
         name: sum(int(env.get(key, 0) or 0) for key in keys)
@@ -72,6 +76,7 @@ def outcome(
             },
             "paused_steps": int(env.get("paused_steps", 0) or 0),
         },
+        "refused": [dict(r) for r in refused],
     }
 
 
@@ -130,4 +135,22 @@ def outcome_lines(out: Mapping[str, Any]) -> list[str]:
             f"- **{out['refused_clocks']} clock messages refused**: not from the environment "
             "(recorded, never obeyed)"
         )
+    refused = out.get("refused") or []
+    if refused:
+        total = sum(r["count"] for r in refused)
+        lines.append(
+            f"- **{total} messages refused by the ground** (recorded, never believed; ddvi run "
+            "exits 3 for a completed mission):"
+        )
+        lines += [f"  - {refused_line(r)}" for r in refused[:20]]
     return lines
+
+
+def refused_line(r: Mapping[str, Any]) -> str:
+    """One kind of refused message, in words: what, from whom, how many, why."""
+    why = {"src": "not this topic's publisher", "topic": "a topic nobody publishes"}.get(
+        r["reason"], f"its body names {r.get('claimed')}, not what its topic names"
+    )
+    return (
+        f"`{r['topic']}` from `{r['src']}`: {r['count']} ({why}; first at t = {r['first_t']:.0f} s)"
+    )

@@ -37,6 +37,7 @@ def _counters() -> dict[str, int]:
     counters.update({f"rejected.{r}": 0 for r in sorted(REASONS)})
     counters.update({f"ignored.{r}": 0 for r in SEQUENCE_REASONS})
     counters["refused.clock"] = 0
+    counters["refused.origin"] = 0
     return counters
 
 
@@ -85,6 +86,9 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
             continue
         if msg.schema == "clock" and msg.src != TIME_MASTER:
             counters["refused.clock"] += 1
+            continue
+        if not data.refusals.accepts(channel.topic, msg):
+            counters["refused.origin"] += 1
             continue
         if (why := guards.check(msg, channel.topic)) is not None:
             counters[f"ignored.{why}"] += 1

@@ -368,6 +368,7 @@ def _outcome(data: RunData, monitor_counters: dict[str, int]) -> dict[str, Any]:
         period=data.period,
         services=data.stats,
         monitor=monitor_counters,
+        refused=data.refusals.summary(),
     )
 
 

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from ddvi_core.orbit import hill_frame, rv_to_hill
 from ddvi_core.truth import acceleration
 from services.config import Deployment, Deputy
+from services.ground.refusals import Refusals
 from services.interface import Message
 from services.model import duration, orbit_period
 
@@ -118,8 +119,10 @@ class RunData:
         self._stats_last: dict[str, dict[str, int]] = {}  # service -> its process's last
         self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
         self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
+        self.finished: set[str] = set()  # services whose final stats (their last message) came
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
         self.last_log: dict[str, str] = {}  # log topic -> the last line logged on it
+        self.refusals = Refusals()  # messages believed of nobody: never ingested
         self.counts: dict[str, int] = {}  # decoded messages by schema
         self.first_ns: int | None = None
         self.last_ns: int | None = None
@@ -138,7 +141,7 @@ class RunData:
         self.last_ns = recv_ns
 
     def ingest(self, topic: str, msg: Message) -> None:
-        """Update the time series with one decoded message."""
+        """Update the time series with one decoded message (one ``refusals`` accepts)."""
         self.counts[msg.schema] = self.counts.get(msg.schema, 0) + 1
         b = msg.body
         if msg.schema == "clock":
@@ -188,6 +191,10 @@ class RunData:
         base = self._stats_base.get(service, {})
         self.stats[service] = {k: base.get(k, 0) + counters.get(k, 0) for k in base | counters}
         self.stats_t[service] = max(t, self.stats_t.get(service, -math.inf))
+        if counters.get("final"):
+            self.finished.add(service)
+        else:  # a restarted service speaks again
+            self.finished.discard(service)
 
     # -- derived quantities -----------------------------------------------------------------
 

@@ -99,19 +99,27 @@ def _services_section() -> list[str]:
     ]
 
 
+def _identity(pairs: tuple[tuple[str, str], ...]) -> str:
+    """A route's identity fields: ``sc = <sc>``, or - for a body that names nobody."""
+    return ", ".join(f"`{field} = <{name}>`" for field, name in pairs) or "-"
+
+
 def _topics_section() -> list[str]:
     rows = [
         (f"`{r.topic}`", f"[`{r.schema}`](#{r.schema})", _code(r.publishers),
-         _code(r.subscribers), r.rate)
+         _code(r.subscribers), _identity(r.identity), r.rate)
         for r in TOPOLOGY
     ]  # fmt: skip
     return [
         "## Topics",
         "",
         "Below `ddvi/<run>/`. The monitor subscribes to every key of the run (`ddvi/<run>/**`) "
-        "and records what it receives.",
+        "and records what it receives. Every receiver, the monitor included, refuses a message "
+        "whose `src` is not one of its topic's publishers, or whose body's identity field is not "
+        'what its topic names (a command on `cmd/lqr/att` naming `sc = "ddvi"`), before it '
+        "touches any state; it counts the refusal (`rejected.src`, `rejected.identity`).",
         "",
-        *_table(("topic", "schema", "publishers", "subscribers", "rate"), rows),
+        *_table(("topic", "schema", "publishers", "subscribers", "body names", "rate"), rows),
         "",
     ]
 

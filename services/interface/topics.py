@@ -156,7 +156,13 @@ class Route:
     # "nav" (run.nav_period, or a deputy's shorter one), "fsw" (run.fsw_period), "status"
     # (run.status_every flight-software steps); at most one message a period, sustained
     budget: str = "nav"
+    identity: tuple[tuple[str, str], ...] = ()
+    """(body field, topic placeholder) pairs: the body's field must name what the topic names
+    (a command on ``cmd/<sc>/att`` is for deputy <sc>, whatever else its body says)."""
 
+
+_DEPUTY = (("sc", "sc"),)  # the body's deputy is the topic's
+_SERVICE = (("service", "service"),)  # the body's service is the topic's (its publisher)
 
 TOPOLOGY: tuple[Route, ...] = (
     Route(
@@ -182,6 +188,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("nav-<sc>", "monitor"),
         "every navigation sample (run.nav_period), for the chief and every deputy; "
         "nav-<sc> takes truth/chief and truth/<sc>",
+        identity=(("sc", "craft"),),
     ),
     Route(
         nav_state_topic("<sc>"),
@@ -189,6 +196,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("nav-<sc>",),
         ("ctrl-<sc>", "monitor"),
         "every navigation sample of the deputy (its navigation.period)",
+        identity=_DEPUTY,
     ),
     Route(
         command_topic("<sc>"),
@@ -197,6 +205,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("environment", "monitor"),
         "every flight-software step (run.fsw_period)",
         budget="fsw",
+        identity=_DEPUTY,
     ),
     Route(
         gains_topic("<sc>"),
@@ -205,6 +214,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("monitor",),
         "at the start, every flight-software step while exploring, on learning, and at the end",
         budget="fsw",
+        identity=_DEPUTY,
     ),
     Route(
         status_topic("<sc>"),
@@ -213,6 +223,7 @@ TOPOLOGY: tuple[Route, ...] = (
         ("monitor",),
         "every run.status_every flight-software steps, and at the end",
         budget="status",
+        identity=_DEPUTY,
     ),
     Route(
         fault_topic("kill"),
@@ -254,6 +265,7 @@ TOPOLOGY: tuple[Route, ...] = (
         "every run.status_every flight-software steps (environment, controllers), after every "
         "restart or kill (launcher), and at each service's end",
         budget="status",
+        identity=_SERVICE,
     ),
     Route(
         log_topic("<service>"),
@@ -261,6 +273,7 @@ TOPOLOGY: tuple[Route, ...] = (
         _EVERY_SERVICE,
         ("monitor", "ground-<pid>"),
         "on an event: a fault acted on, a learning outcome, a warning",
+        identity=_SERVICE,
     ),
 )
 """Every topic below ``ddvi/<run>/``: its schema, publishers, subscribers and rate.  The
@@ -381,3 +394,24 @@ def publisher_of(topic: str) -> str | None:
     if len(route.publishers) > 1 or "<pid>" in template:
         return template.split("-<", 1)[0]
     return _PLACEHOLDER.sub(lambda m: names.get(m.group(1), m.group(0)), template)
+
+
+@functools.lru_cache(maxsize=4096)  # the topics of a run: a few dozen; garbage may add more
+def topic_identity(topic: str) -> tuple[tuple[str, str], ...]:
+    """The (body field, value) pairs a message on ``topic`` must carry: what the topic names
+    (``cmd/lqr/att``: ``(("sc", "lqr"),)``; ``stats/nav-lqr``: ``(("service", "nav-lqr"),)``);
+    () for a topic whose body names nobody, or one outside the topology."""
+    found = _route_of(topic)
+    if found is None:
+        return ()
+    route, names = found
+    return tuple((field, names[name]) for field, name in route.identity)
+
+
+def identity_mismatch(topic: str, body: object) -> str | None:
+    """The first identity field of ``body`` that is not what ``topic`` names (``topic_identity``),
+    None when every one is."""
+    for field, value in topic_identity(topic):
+        if not isinstance(body, dict) or body.get(field) != value:
+            return field
+    return None

@@ -35,9 +35,9 @@ from tests.support import unique_run_name, wait_until
 TIMEOUT = 5.0
 
 
-def nav_body(x: float = 0.0) -> dict[str, Any]:
+def nav_body(x: float = 0.0, sc: str = "deputy1") -> dict[str, Any]:
     return {
-        "sc": "deputy1",
+        "sc": sc,
         "x_hill": np.full(6, x),
         "z_hill": np.full(6, x),
         "cov": np.eye(6),
@@ -299,13 +299,40 @@ def test_deployment_link_rules_apply_per_publisher(
         rx.pump(sim_time=100.0)
         inbox.queue.clear()
         nav.publish("nav/deputy1/state", "nav", nav_body(1.0), t=200.0)
-        other.publish("nav/deputy2/state", "nav", nav_body(2.0), t=200.0)
+        other.publish("nav/deputy2/state", "nav", nav_body(2.0, "deputy2"), t=200.0)
         assert [seen.get(timeout=TIMEOUT)[1].src for _ in range(2)].count("nav-deputy1") == 1
         assert inbox.get(timeout=TIMEOUT)[1].src == "nav-deputy2"  # no rule: straight through
         assert inbox.empty()
         assert rx.pump(sim_time=209.0) == 0
         assert rx.pump(sim_time=210.0) == 1  # sent at 200, 10 s link
         assert inbox.get_nowait()[1].src == "nav-deputy1"
+
+
+def test_a_refused_message_is_not_observed(
+    sessions: tuple[zenoh.Session, zenoh.Session], run: str
+) -> None:
+    """A message refused by its body's identity or by the replay window reaches neither the
+    handler nor the observer (a lock-step wait must not count it as accounted for)."""
+    hub, svc = sessions
+    inbox: Inbox = queue.Queue()
+    seen: Inbox = queue.Queue()
+    key = f"ddvi/{run}/nav/deputy1/state"
+    with Bus(hub, run, "controller") as rx, Bus(svc, run, "nav-deputy1") as nav:
+        rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav", observe=queue_handler(seen))
+        connect(nav, seen, "nav/deputy1/state")
+        inbox.queue.clear()
+        first = nav.publish("nav/deputy1/state", "nav", nav_body(1.0), t=100.0)
+        nav.publish("nav/deputy1/state", "nav", nav_body(2.0), t=110.0)
+        assert [seen.get(timeout=TIMEOUT)[1].t for _ in range(2)] == [100.0, 110.0]
+        for payload in (
+            encode("nav", nav_body(9.0), seq=first, t=100.0, src="nav-deputy1"),  # old seq
+            encode("nav", nav_body(9.0, "deputy2"), seq=first + 2, t=120.0, src="nav-deputy1"),
+        ):
+            svc.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        assert wait_until(lambda: rx.counters["rejected"] == 2)
+        c = rx.counters
+        assert c["rejected.duplicate"] == 1 and c["rejected.identity"] == 1
+        assert seen.empty() and inbox.qsize() == 2  # the two genuine ones only
 
 
 def test_a_link_rule_added_at_run_time_takes_the_next_message(
@@ -462,7 +489,7 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
         svc.put(key, old, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_until(lambda: rx.counters["rejected.stale"] == 1)
         for _ in range(5):  # at t = 0: due at once, each with its copy
-            tx2.publish("nav/deputy2/state", "nav", nav_body(4.0), t=0.0)
+            tx2.publish("nav/deputy2/state", "nav", nav_body(4.0, "deputy2"), t=0.0)
         assert [dups.get(timeout=TIMEOUT)[1].seq for _ in range(5)] == list(range(5))
         assert wait_until(lambda: rx.counters["rejected.duplicate"] == 1 + 5)
         c = rx.counters

@@ -30,7 +30,7 @@ from services.bus.security import (
 )
 from services.ground.launcher import free_port
 from services.interface import Message, encode
-from services.interface.topics import may_publish
+from services.interface.topics import may_publish, topic_identity
 from tests.support import wait_until
 
 RUN = "sec"
@@ -86,8 +86,8 @@ def test_credentials_are_private_files_never_alike(tmp_path: Path) -> None:
         load_credentials(tmp_path / "bad.json")
 
 
-def _msg(src: str, t: float = 60.0, **body: float) -> Message:
-    return Message("cmd", 1, 0, t, src, dict(body))
+def _msg(src: str, t: float = 60.0, sc: str = "lqr", **body: float) -> Message:
+    return Message("cmd", 1, 0, t, src, {"sc": sc, **body})
 
 
 def test_origin_check_refuses_another_publisher_and_times_outside_the_window() -> None:
@@ -101,6 +101,14 @@ def test_origin_check_refuses_another_publisher_and_times_outside_the_window() -
     assert check_origin(_msg("ctrl-lqr", for_t=math.inf), "cmd/lqr/att", window) == "time"
     assert check_origin(_msg("ctrl-lqr", for_t=1e12), "cmd/lqr/att") is None  # no window
     assert check_origin(_msg("anyone"), "probe", window) is None  # outside the topology
+    # the owner of cmd/lqr/att speaks for lqr only: a command naming another deputy is refused
+    assert check_origin(_msg("ctrl-lqr", sc="ddvi", for_t=120.0), "cmd/lqr/att") == "identity"
+    stats = Message("stats", 1, 0, 60.0, "nav-lqr", {"service": "environment", "counters": {}})
+    assert check_origin(stats, "stats/nav-lqr") == "identity"
+    assert check_origin(stats, "stats/environment") == "src"
+    assert topic_identity("truth/chief") == (("sc", "chief"),)
+    assert topic_identity("stats/nav-lqr") == (("service", "nav-lqr"),)
+    assert topic_identity("clock") == () and topic_identity("fault/panel") == ()
     assert may_publish("ground-4242", "fault/kill") and not may_publish("ctrl-lqr", "fault/kill")
     assert may_publish("environment", "clock") and not may_publish("nav-evil", "clock")
 

@@ -139,6 +139,10 @@ def _cases() -> list[Case]:
         ("empty deputies", _file_case(b"[run]\norbits = 1.0\n"), "deputy"),
         ("unknown key", _file_case(b"[run]\norbtis = 1.0\n[[deputy]]\nname='a'\n"), "orbtis"),
         ("no such deployment", lambda f: ["run", str(f / "missing.toml"), "--quiet"], "missing"),
+        ("a folder as deployment", lambda f: ["run", str(f), "--quiet"], "is a directory"),
+        ("run --output ''", lambda f: ["run", "--output", ""], "--output is empty"),
+        ("run --folder-mode 0755", lambda f: ["run", "--folder-mode", "0755"], "others nothing"),
+        ("run --folder-mode x", lambda f: ["run", "--folder-mode", "x"], "octal"),
         ("learn --seed -1", lambda f: ["learn", "rendezvous", "--seed", "-1"], "seed"),
         ("learn --seed 2**32", lambda f: ["learn", "rendezvous", "--seed", str(2**32)], "seed"),
         ("learn --seed x", lambda f: ["learn", "rendezvous", "--seed", "x"], "seed"),
@@ -245,6 +249,10 @@ def test_an_output_folder_that_cannot_be_made_is_one_line_and_exit_2(
     argv = _deployment_case(BASE)(tmp_path)
     argv[argv.index("--output") + 1] = str(tmp_path / "a-file" / "runs")
     _check_one_line_exit_2(argv, tmp_path, capsys, "cannot create the run folder")
+    # without --quiet too: no progress line before the error
+    argv[argv.index("--output") + 1] = str(tmp_path / "a-file")
+    argv.remove("--quiet")
+    _check_one_line_exit_2(argv, tmp_path, capsys, "a-file: not a folder")
 
 
 def test_a_deployment_the_machine_cannot_hold_is_refused(tmp_path: Path, capsys, monkeypatch):
