@@ -211,7 +211,7 @@ class ControllerService:
         t_end = self.next_tick - self.fsw
         self.publish_gains(t_end)
         self.publish_status(t_end)
-        self.ctx.publish_stats(t_end, self.counters, final=True)
+        self.ctx.publish_stats(t_end, self.counters)
         return status
 
     def check_waiting(self) -> None:

@@ -200,7 +200,7 @@ class EnvironmentService:
             if counters["steps"] % run.status_every == 0:
                 self.ctx.publish_stats(t_k, counters)
         completed = t_k >= self.t_end - 1e-6
-        self.ctx.publish_stats(t_k, {**counters, "completed": int(completed)}, final=True)
+        self.ctx.publish_stats(t_k, {**counters, "completed": int(completed)})
         return 0 if completed else 3
 
     # -- publishing ---------------------------------------------------------------------------

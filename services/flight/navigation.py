@@ -128,7 +128,7 @@ class NavigationService:
                         break
             if self.final.t is not None and self.last_pair >= self.final.t - 1e-6:
                 break
-        self.ctx.publish_stats(self.last_t, self.counters, final=True)
+        self.ctx.publish_stats(self.last_t, self.counters)
         return 0
 
     def handle(self, msg: Message) -> None:

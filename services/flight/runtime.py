@@ -73,15 +73,9 @@ class ServiceContext:
         service seen alive never misses a message addressed to it."""
         self.bus.declare_alive()
 
-    def publish_stats(
-        self, t: float, extra: dict[str, int] | None = None, final: bool = False
-    ) -> None:
-        """The service's counters on ``stats/<service>``; ``final``: its last message (counter
-        ``final`` = 1), which the monitor takes as the end of what the service puts."""
+    def publish_stats(self, t: float, extra: dict[str, int] | None = None) -> None:
         counters = dict(self.bus.counters)
         counters.update(extra or {})
-        if final:
-            counters["final"] = 1
         self.bus.publish(
             stats_topic(self.name), "stats", {"service": self.name, "counters": counters}, t
         )

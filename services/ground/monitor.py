@@ -14,7 +14,10 @@ counted (``flooded``, ``flood.<publisher>``): a flood never puts the monitor beh
 A message whose (publisher, topic, seq) was seen already, or is older than the receiver's
 sequence window (``services.bus.SequenceGuard``), is recorded but kept out of the report and
 counted (``ignored.duplicate``, ``ignored.stale``); a payload whose schema is not the one its
-topic carries (``services.interface.schema_for_topic``) is rejected ``wrong_schema``.
+topic carries (``services.interface.schema_for_topic``) is rejected ``wrong_schema``. One its
+publisher may not send, or whose body names another deputy or service than its topic, is
+recorded but believed of nobody (``services.ground.refusals``: counted by publisher, topic and
+reason, listed in the report).
 
 The file is flushed (chunk closed and written to the OS) every ``FLUSH_PERIOD`` s, so a kill -9
 of the monitor loses at most that much; ``read_recording`` reads such a footer-less file too.
@@ -22,14 +25,13 @@ On a normal stop and on SIGTERM the writer is closed (summary and footer written
 
 When the ``clock`` message with ``final = true`` arrives the monitor waits until every other
 service of the deployment has finished or ``FINAL_WAIT`` s pass, then closes the recording,
-writes the report (``services.ground.report``) and exits 0. A service has finished when its
-final stats are in (its last message: they arrive behind all it put before), or its
-liveliness token has been gone ``GONE`` s (a crashed service: a token's undeclaration can
-overtake the data put just before it, so a token alone does not end the recording). Messages
-from different publishers are not ordered with respect to each other, so a service's final
-stats may arrive before the final clock; what arrives within ``FINAL_GRACE`` s after the
-last service finished is still recorded. SIGTERM before that closes the recording and writes
-a partial report (``"completed": false``), also exit 0.
+writes the report (``services.ground.report``) and exits 0. A service seen alive has finished
+when its liveliness token is gone (services publish their final stats before leaving); one
+never seen alive, when it has sent stats with t >= the final time. Messages from different
+publishers are not ordered with respect to each other, so a service's final stats may arrive
+before the final clock; what arrives within ``FINAL_GRACE`` s after the last service finished
+is still recorded. SIGTERM before that closes the recording and writes a partial report
+(``"completed": false``), also exit 0.
 
 Live status: ``services.ground.status``, refreshed every ``DRAW_PERIOD`` s.
 """
@@ -66,7 +68,6 @@ FLUSH_PERIOD = 0.5  # s between recording flushes (bounds the loss on kill -9)
 DRAW_PERIOD = 0.5  # s between live status refreshes
 FINAL_WAIT = 5.0  # s to wait for the other services' final stats after the final clock
 FINAL_GRACE = 0.25  # s to keep recording once every service has finished
-GONE = 1.0  # s after a token went without final stats before its service counts as finished
 STOP_DRAIN = 1.0  # s to keep recording what is already queued after SIGTERM
 # s to record what is still queued once the subscribers are gone: the recording must be closed
 # (its summary and footer written) well within the launcher's report grace, whatever the backlog
@@ -113,7 +114,6 @@ class Monitor:
         self.guards = SequenceGuards()
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
-        self.gone_at: dict[str, float] = {}  # monotonic s each service's token last went
         self.others = [s for s in ctx.deployment.services if s != ctx.name]
         self.recorder: Recorder | None = None
 
@@ -139,10 +139,8 @@ class Monitor:
             if value:
                 self.alive.add(name)
                 self.ever_alive.add(name)
-                self.data.finished.discard(name)  # restarted: its final stats are to come
             else:
                 self.alive.discard(name)
-                self.gone_at[name] = time.monotonic()
             rec.alive(name, bool(value), recv_ns, self.data.sim_t)
             return
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
@@ -210,21 +208,15 @@ class Monitor:
             self.counters.update(flood)
 
     def done(self, service: str) -> bool:
-        """After the final clock: has ``service`` finished? When its final stats are in (a
-        service publishes them last, ``ServiceContext.publish_stats(final=True)``), or its
-        liveliness token has been gone ``GONE`` s without them; one never seen alive, when it
-        has sent stats for the final time."""
+        """After the final clock: has ``service`` finished? A service seen alive is finished
+        when its liveliness token is gone (it publishes its final stats before leaving); one
+        never seen alive, when it has sent stats for the final time."""
         d = self.data
         if not d.final_seen or d.final_t is None:
             return False
-        if service in d.finished:
-            return True  # its final stats: put after its last data, so behind it on the wire
-        if service not in self.ever_alive:
-            return d.stats_t.get(service, -math.inf) >= d.final_t - 1e-6
-        # gone without them (a crash, a kill): its token's undeclaration can overtake the data
-        # it put just before, so it has finished once gone a while
-        gone = self.gone_at.get(service)
-        return gone is not None and service not in self.alive and time.monotonic() - gone >= GONE
+        if service in self.ever_alive:
+            return service not in self.alive
+        return d.stats_t.get(service, -math.inf) >= d.final_t - 1e-6
 
     def pending(self) -> list[str]:
         """The other services not finished yet."""

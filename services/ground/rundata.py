@@ -119,7 +119,6 @@ class RunData:
         self._stats_last: dict[str, dict[str, int]] = {}  # service -> its process's last
         self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
         self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
-        self.finished: set[str] = set()  # services whose final stats (their last message) came
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
         self.last_log: dict[str, str] = {}  # log topic -> the last line logged on it
         self.refusals = Refusals()  # messages believed of nobody: never ingested
@@ -191,10 +190,6 @@ class RunData:
         base = self._stats_base.get(service, {})
         self.stats[service] = {k: base.get(k, 0) + counters.get(k, 0) for k in base | counters}
         self.stats_t[service] = max(t, self.stats_t.get(service, -math.inf))
-        if counters.get("final"):
-            self.finished.add(service)
-        else:  # a restarted service speaks again
-            self.finished.discard(service)
 
     # -- derived quantities -----------------------------------------------------------------
 

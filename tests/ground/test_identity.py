@@ -9,6 +9,8 @@ from __future__ import annotations
 import contextlib
 import json
 import queue
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -149,3 +151,10 @@ def test_a_stolen_credential_speaks_only_for_its_own_topics(tmp_path: Path) -> N
     assert "`cmd/lqr/att` from `ctrl-lqr`: 1" in report
     assert "`stats/nav-lqr` from `nav-lqr`: 1" in report
     assert "`ctrl/lqr/gains` from `ctrl-lqr`: 1" in report
+    # `ddvi report` from the recording believes and refuses the same
+    r = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out)],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    again = json.loads((out / "summary.json").read_text())
+    assert again["outcome"]["refused"] == summary["outcome"]["refused"]
+    assert again["deputies"] == clean_summary["deputies"]
