@@ -223,7 +223,7 @@ def _step_and_error(
 
 
 def _leaves(P: NDArray, radius: float, psd_tol: float) -> str:
-    """"bound" when |P|_F > radius, "cone" when an eigenvalue is below -psd_tol |P|, else ""."""
+    """ "bound" when |P|_F > radius, "cone" when an eigenvalue is below -psd_tol |P|, else ""."""
     norm = float(np.sqrt(np.sum(P * P)))
     if norm > radius:
         return "bound"
@@ -314,9 +314,7 @@ def value_iteration_loop(
         if not math.isfinite(residual) and acc.fallback is None:
             return P, K, k + 1, r, False, residual, history[:k], "the residual is not finite"
         P_norm = float(np.sqrt(np.sum(P * P)))
-        K_residual = (
-            float(np.linalg.norm(riccati_map(dP)[1])) if rule == "relative" else math.inf
-        )
+        K_residual = float(np.linalg.norm(riccati_map(dP)[1])) if rule == "relative" else math.inf
         eps, errors[k], threshold = _step_and_error(
             steps, rule, k, K, P_norm, residual, K_residual, closed_loop, tol
         )

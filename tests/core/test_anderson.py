@@ -74,7 +74,7 @@ def test_the_safeguard_rejects_an_extrapolation_that_leaves_the_cone_and_recover
     proposals: list[float] = []
     propose = anderson.AndersonHistory.propose
 
-    def spy(self, P, F, eps):  # noqa: ANN001, ANN202
+    def spy(self, P, F, eps):
         out = propose(self, P, F, eps)
         if out is not None:
             proposals.append(float(np.linalg.eigvalsh(out)[0] / np.linalg.norm(out)))
