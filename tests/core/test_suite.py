@@ -46,10 +46,12 @@ def test_the_suite_is_all_here() -> None:
     assert FILES == [
         "boeing747-lateral",
         "cart-pole",
+        "dc-motor-position",
         "double-integrator",
         "f16-short-period",
         "mass-spring-tracking",
         "quadrotor-hover",
+        "thermal-chain",
     ]
 
 
