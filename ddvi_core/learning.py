@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ddvi_core.anderson import DEFAULT_MEMORY
 from ddvi_core.policy_learning import iterate
 from ddvi_core.regression import (
     EquilibratedTheta,
@@ -393,7 +394,8 @@ def _regulator_in_si(
 
 def _outcome(iterations: int, resets: int, converged: bool, why: str) -> str:
     if converged:
-        return f"converged in {iterations} iterations ({resets} resets)"
+        met = f": {why}" if why else ""
+        return f"converged in {iterations} iterations ({resets} resets){met}"
     return f"not converged after {iterations} iterations ({why})"
 
 
@@ -419,6 +421,7 @@ def learn_from_data(
     rule: str = "residual",
     method: str = "vi",
     K0: ArrayLike | None = None,
+    memory: int = DEFAULT_MEMORY,
 ) -> DDVIResult:
     """Algorithm 2 on collected interval data.
 
@@ -443,7 +446,8 @@ def learn_from_data(
     the data's map implies (:func:`ddvi_core.regression.implied_plant`).  ``method``: "vi"
     (Algorithm 2), "pi" (policy iteration on the same data from the stabilising gain ``K0``
     (m, n), SI units) or "hybrid" (value iteration until the gain stabilises, then policy
-    iteration): :mod:`ddvi_core.policy_learning`.
+    iteration): :mod:`ddvi_core.policy_learning`.  ``memory``: value iteration's Anderson
+    acceleration over that many past steps (0: plain; :mod:`ddvi_core.anderson`).
     """
     n, m, q = data.n, data.m, data.q
     Q, R = _checked_weights(data, Q, R, C, E, F)
@@ -462,7 +466,7 @@ def learn_from_data(
     K0_s = np.zeros((m, n)) if K0 is None else np.asarray(K0, dtype=float) * S[None, :]
     P_s, _, k, resets, converged, _, history, why = iterate(
         method, RiccatiMap(maps[0], n, m), Q_s, R_s, P0_s, K0_s, steps or StepSequence(),
-        bounds or BoundSchedule(), tol, max_iterations, rule,
+        bounds or BoundSchedule(), tol, max_iterations, rule, memory,
     )  # fmt: skip
     K_s, residual = regression_solution(maps[0], thetas[0], P_s, n, m)
     B_s, D_s, S_X = implied_matrices(maps, P_s, K_s, R_s, n, m, q)

@@ -170,9 +170,11 @@ def iterate(
     tol: float,
     max_iterations: int,
     rule: str,
+    memory: int = 0,
 ) -> LoopResult:
     """The learner's iteration by ``method`` (one of :data:`LEARNING_METHODS`), in scaled
-    units: value iteration from P0_s (n, n), policy iteration from K0_s (m, n), or the hybrid.
+    units: value iteration from P0_s (n, n) (Anderson-accelerated over ``memory`` steps when
+    positive), policy iteration from K0_s (m, n), or the hybrid.
     The step and stopping rules read the closed loop's eigenvalues off the matrices the data's
     map implies (:func:`ddvi_core.regression.implied_plant`), never A or B.
     """
@@ -184,7 +186,7 @@ def iterate(
     if method == "vi":
         return value_iteration_loop(
             riccati_map, Q_s, R_s, P0_s, steps, bounds, tol, max_iterations,
-            closed_loop=closed_loop, rule=rule,
+            closed_loop=closed_loop, rule=rule, memory=memory,
         )  # fmt: skip
     if method == "pi":
         return policy_iteration_loop(riccati_map, Q_s, R_s, K0_s, tol, max_iterations)

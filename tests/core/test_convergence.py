@@ -49,7 +49,8 @@ def test_a_spent_budget_says_the_error_and_its_trend() -> None:
 def test_value_iteration_reports_the_budget_with_its_trend() -> None:
     A = np.array([[0.0, 1.0], [-1.0, -0.01]])  # lightly damped: slow with the paper's 1/k
     B, Q, R = np.array([[0.0], [1.0]]), np.eye(2), np.eye(1)
-    res = value_iteration(A, B, Q, R, max_iterations=300, rule="relative", scaling=False)
+    plain = {"rule": "relative", "scaling": False, "memory": 0}  # the budget of the plain loop
+    res = value_iteration(A, B, Q, R, max_iterations=300, **plain)
     assert not res.converged and "estimated relative error" in res.message
     res = value_iteration(
         A, B, Q, R, steps=StepSequence("adaptive", 0.5), rule="relative", scaling=False
