@@ -90,7 +90,7 @@ class LearningConfig:
     value iteration's does not (``carries_density_ratio``);
     feedforward_significance: model-fit: the feedforward is solved on D with only the
     exostate modes the data tell from zero at this level (a cluster-robust Wald test,
-    ``ddvi_core.model_fit.fit_exosystem_input``); 0: every mode;
+    ``ddvi_core.exostate_fit.fit_exosystem_input``); 0: every mode;
     feedforward_modes: model-fit: 'all' (D fitted free for every exostate mode) or 'static'
     (only the modes E holds constant, each along B: a drag offset; harmonics zero);
     validation_orbits: model-fit: an accepted gain flies only when the model fitted without

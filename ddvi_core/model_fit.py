@@ -28,7 +28,6 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import scipy.integrate
@@ -50,15 +49,12 @@ __all__ = [
     "IntegralHistory",
     "ModelFitError",
     "ModelFitResult",
-    "exostate_groups",
-    "fit_exosystem_input",
     "fit_linear_model",
     "gain_standard_error",
     "gains_from_model",
     "interval_regressors",
     "learn_by_model_fit",
     "prediction_residual",
-    "static_groups",
 ]
 
 
@@ -437,29 +433,6 @@ def learn_by_model_fit(
     return gains_from_model(model, Q, R, C, E, F)
 
 
-def exostate_groups(E: ArrayLike) -> list[list[int]]:
-    """The exostate's modes (q,) grouped as E (q, q) couples them: the connected components of
-    E's nonzero pattern, each in index order (a constant is a group of one, a harmonic its
-    cosine and sine).  A mode is kept or dropped from a feedforward whole."""
-    E = np.atleast_2d(np.asarray(E, dtype=float))
-    q = E.shape[0]
-    linked = (E != 0) | (E.T != 0)
-    group = list(range(q))
-    for i in range(q):
-        for j in range(i + 1, q):
-            if linked[i, j]:
-                old, new = group[j], group[i]
-                group = [new if g == old else g for g in group]
-    return [[k for k in range(q) if group[k] == g] for g in sorted(set(group))]
-
-
-def static_groups(E: ArrayLike) -> list[list[int]]:
-    """The groups of :func:`exostate_groups` that E holds constant (zero rows and columns):
-    a constant, a measured ratio; not a harmonic."""
-    E = np.atleast_2d(np.asarray(E, dtype=float))
-    return [g for g in exostate_groups(E) if not E[np.ix_(g, g)].any()]
-
-
 def _clusters(data: IntegralData, pairs: NDArray, cluster_s: float) -> NDArray:
     """The cluster (rho,) of each interval: ``cluster_s`` s of interval starts each.
     Overlapping intervals and a filtered estimate's coloured error make neighbouring rows
@@ -473,126 +446,6 @@ def _cluster_sums(cluster: NDArray, score: NDArray) -> NDArray:
     sums = np.zeros((cluster[-1] + 1, score.shape[1]))
     np.add.at(sums, cluster, score)
     return sums
-
-
-def _wald_p_values(X: NDArray, y: NDArray, cluster: NDArray, groups: list[list[int]]) -> NDArray:
-    """Per group of X's columns: the chi-squared tail probability of a Wald statistic as large
-    as the fit's, were the group's coefficients zero, under the cluster-robust covariance of
-    the least-squares fit of y (rows,) on X (rows, p)."""
-    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
-    sums = _cluster_sums(cluster, (y - X @ theta)[:, None] * X)
-    G = np.linalg.pinv(X.T @ X)
-    cov = G @ sums.T @ sums @ G
-    p_values = []
-    for g in groups:
-        sub = cov[np.ix_(g, g)]
-        dof = int(np.linalg.matrix_rank(sub))
-        stat = float(theta[g] @ np.linalg.pinv(sub) @ theta[g]) if dof else 0.0
-        p_values.append(float(scipy.stats.chi2.sf(stat, dof)) if dof else 1.0)
-    return np.asarray(p_values)
-
-
-def _independent_groups(design: Any, groups: list[list[int]], rtol: float) -> list[list[int]]:
-    """``groups`` in order, less each whose columns of ``design(cols)`` (scaled to unit RMS)
-    the groups before it already span to ``rtol``: on station at a constant altitude the
-    density ratio is a constant."""
-    kept: list[list[int]] = []
-    for g in groups:
-        X = design(sorted(k for h in [*kept, g] for k in h))
-        sv = np.linalg.svd(X / _column_scale(X), compute_uv=False)
-        if sv.size and sv[0] > 0 and sv[-1] > rtol * sv[0]:
-            kept.append(g)
-    return kept
-
-
-def fit_exosystem_input(
-    data: IntegralData,
-    A: ArrayLike,
-    B: ArrayLike,
-    *,
-    length: float,
-    stride: float,
-    smoothing: float = 0.0,
-    rtol: float = 1e-9,
-    positions: int = 0,
-    groups: list[list[int]] | None = None,
-    significance: float = 0.0,
-    held: ArrayLike | None = None,
-    matched: bool = False,
-) -> NDArray[np.float64]:
-    """D (n, q) refitted with A (n, n) and B (n, m) held: the least-squares D of the interval
-    relation's residual x(b) - x(a) - A int x - B int u on int v.  It needs no excitation of
-    the input, so it can be fitted on data flown on the learned gains near the slot, where the
-    exostate's effect (the drag offset) is what the feedforward must cancel; the first
-    ``positions`` rows (kinematics, as in :func:`fit_linear_model`) are zero.
-
-    ``groups`` are the columns fitted, in groups (default: every column, one each; see
-    :func:`exostate_groups`); any other column is held at ``held``'s (n, q; default zero).
-    ``matched``: each fitted column is B theta_k (theta_k (m,)), a disturbance that acts where
-    the input does (a drag offset acts along the drag, whatever the fit's A makes of the
-    rest): m numbers a column instead of n - positions, and the regulator equations then give
-    X = 0 and U = -theta for it.
-
-    With ``significance`` alpha in (0, 1), a group whose coefficients the data do not tell
-    from zero is dropped (its D columns zero), one at a time, the least significant first,
-    each time refitting the rest: a group stays when its cluster-robust Wald test rejects
-    "zero" at level alpha.  A feedforward solved on noise is worse than none: the loop's
-    orbit-rate mode is lightly damped, and a spurious orbit-rate term in D drives it at
-    resonance.  Raises RankDeficientError when the fitted columns' integrals do not have full
-    rank."""
-    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
-    n, m = B.shape
-    if not 0 <= significance < 1:
-        raise LearningError(f"significance must lie in [0, 1), got {significance}")
-    y, phi = interval_regressors(data, length, stride, smoothing)
-    q = phi.shape[1] - n - m
-    kept = [list(g) for g in (groups if groups is not None else [[k] for k in range(q)])]
-    cols = sorted(k for g in kept for k in g)
-    if len(set(cols)) != len(cols) or not set(cols) <= set(range(q)):
-        raise LearningError(f"groups must be disjoint sets of the {q} exostate columns: {groups}")
-    D = np.zeros((n, q)) if held is None else np.array(held, dtype=float).reshape(n, q)
-    D[:, cols] = 0.0
-    rest = y - phi[:, :n] @ A.T - phi[:, n : n + m] @ B.T - phi[:, n + m :] @ D.T
-    rest = rest[:, positions:]
-    phi_v = phi[:, n + m :]
-    # each fitted column is M theta_k: M = I (free rows) or B's fitted rows (matched)
-    M = B[positions:] if matched else np.eye(n - positions)
-    w = M.shape[1]
-    names = [f"int v{k} {'along B' if matched else 'row'} {j}" for k in range(q) for j in range(w)]
-
-    def design(cols: list[int]) -> NDArray:
-        return np.kron(phi_v[:, cols], M)  # rows (interval, state), columns (mode, theta)
-
-    def params(cols: list[int], g: list[int]) -> list[int]:
-        return [cols.index(k) * w + j for k in g for j in range(w)]
-
-    target = rest.reshape(-1)
-    if significance > 0:  # a group the others already span says nothing of its own
-        kept = _independent_groups(design, kept, rtol)
-        cols = sorted(k for g in kept for k in g)
-    if cols:  # the fitted columns must be identifiable before any is dropped
-        _full_rank_lstsq(
-            design(cols), target[:, None], [names[k * w + j] for k in cols for j in range(w)], rtol
-        )
-    if significance > 0 and cols:
-        pairs = interval_pairs(data.t, data.segment, length, stride, smoothing)
-        cluster = np.repeat(_clusters(data, pairs, 2 * (length + smoothing)), n - positions)
-        while kept:
-            cols = sorted(k for g in kept for k in g)
-            X = design(cols)
-            scale = _column_scale(X)
-            p_values = _wald_p_values(X / scale, target, cluster, [params(cols, g) for g in kept])
-            worst = int(np.argmax(p_values))
-            if p_values[worst] <= significance:
-                break
-            kept.pop(worst)
-    cols = sorted(k for g in kept for k in g)
-    if cols:
-        theta, _ = _full_rank_lstsq(
-            design(cols), target[:, None], [names[k * w + j] for k in cols for j in range(w)], rtol
-        )
-        D[positions:, cols] = M @ theta.reshape(len(cols), w).T
-    return D
 
 
 def gain_standard_error(

@@ -24,20 +24,18 @@ from typing import Any
 
 import numpy as np
 
+from ddvi_core.exostate_fit import exostate_groups, fit_exosystem_input, static_groups
 from ddvi_core.learning import LearningError
 from ddvi_core.learning_config import LearningConfig
 from ddvi_core.lqr import NotStabilisingError, solve_lqr
 from ddvi_core.model_fit import (
     IntegralData,
     ModelFitError,
-    exostate_groups,
-    fit_exosystem_input,
     fit_linear_model,
     gain_standard_error,
     interval_regressors,
     learn_by_model_fit,
     prediction_residual,
-    static_groups,
 )
 from ddvi_core.regulator import InfeasibleError, feedforward_gain, solve_regulator_equations
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from ddvi_core.exostate_fit import exostate_groups, fit_exosystem_input, static_groups
 from ddvi_core.learning import LearningError, RankDeficientError
 from ddvi_core.lqr import solve_lqr
 from ddvi_core.model_fit import (
@@ -18,15 +19,12 @@ from ddvi_core.model_fit import (
     IntegralData,
     IntegralHistory,
     ModelFitError,
-    exostate_groups,
-    fit_exosystem_input,
     fit_linear_model,
     gain_standard_error,
     gains_from_model,
     interval_pairs,
     learn_by_model_fit,
     prediction_residual,
-    static_groups,
 )
 from ddvi_core.models import harmonic_exosystem
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
