@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from typing import Any
 
+import zenoh
+
 from services.bus import (
     LINK_PARAMETERS,
     SERVICE_ZENOH_RUNTIME,
@@ -218,6 +220,7 @@ def run_service(
         stream=sys.stderr,
         format=f"%(asctime)s {args.name} %(levelname)s %(message)s",
     )
+    zenoh.init_log_from_env_or("warn")
     try:
         dep = load_deployment(args.deployment)
     except DeploymentError as exc:

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+import zenoh
+
 from services.bus import Bus, BusSettings, open_session, queue_handler
 from services.config import Deployment
 from services.flight.health import HANG_STATUS
@@ -208,6 +210,7 @@ class Launcher:
         """Open the hub's session (failing: one line, status 2, and no run folder left), then
         fly the mission."""
         started = time.monotonic()
+        zenoh.init_log_from_env_or("warn")  # the router's own warnings (a dropped sample, a link)
         with contextlib.ExitStack() as stack:
             try:
                 session = stack.enter_context(open_session(self._hub_settings()))

@@ -288,9 +288,14 @@ class Ending:
             if not mon.pending() and self.grace_deadline is None:
                 self.grace_deadline = now + FINAL_GRACE  # stragglers racing the token drops
             graced = self.grace_deadline is not None and now >= self.grace_deadline
+            if graced and mon.data.unrecorded():
+                graced = False  # published and not here yet: wait for it, up to FINAL_WAIT
             if graced or now >= self.final_deadline:
                 if missing := mon.pending():
                     log.warning("no final stats from %s after %.0f s", missing, FINAL_WAIT)
+                if unrecorded := mon.data.unrecorded():
+                    log.warning("published but never recorded: %s", ", ".join(
+                        f"{n} from {s}" for s, n in sorted(unrecorded.items())))  # fmt: skip
                 return True
         if stop:
             # Record what has already arrived (bounded), then stop.

@@ -156,6 +156,7 @@ def _message_summary(data: RunData, monitor: dict[str, int]) -> dict[str, Any]:
             if k.startswith("rejected.") and v
         },
         "by_schema": dict(sorted(data.counts.items())),
+        "unrecorded": dict(sorted(data.unrecorded().items())),
         "services": services,
         "totals": {
             "sent": total("sent"),
@@ -296,6 +297,11 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
         f"{reasons}; all services: sent {tot['sent']}, received "
         f"{tot['received']}, dropped {tot['dropped']}, rejected {tot['rejected']}, late "
         f"commands {tot['late']}, missing commands {tot['missing']}.",
+    ]
+    if m.get("unrecorded"):
+        lost = ", ".join(f"{n} from {s}" for s, n in m["unrecorded"].items())
+        lines += [f"Published but never recorded (lost between publisher and monitor): {lost}."]
+    lines += [
         "",
         "## Figures",
         "",

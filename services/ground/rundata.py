@@ -119,6 +119,8 @@ class RunData:
         self._stats_last: dict[str, dict[str, int]] = {}  # service -> its process's last
         self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
         self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
+        self._processes: dict[str, int] = {}  # service -> its processes that sent stats
+        self.ingested_from: dict[str, int] = {}  # publisher -> its messages believed
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
         self.last_log: dict[str, str] = {}  # log topic -> the last line logged on it
         self.refusals = Refusals()  # messages believed of nobody: never ingested
@@ -142,6 +144,7 @@ class RunData:
     def ingest(self, topic: str, msg: Message) -> None:
         """Update the time series with one decoded message (one ``refusals`` accepts)."""
         self.counts[msg.schema] = self.counts.get(msg.schema, 0) + 1
+        self.ingested_from[msg.src] = self.ingested_from.get(msg.src, 0) + 1
         b = msg.body
         if msg.schema == "clock":
             self.clock_seen = True
@@ -180,7 +183,10 @@ class RunData:
         """A service's counters: summed over its processes, since a restarted one counts from 0
         again."""
         last = self._stats_last.get(service)
-        if last is not None and counters.get("sent", 0) < last.get("sent", 0):
+        if last is None:
+            self._processes[service] = 1
+        elif counters.get("sent", 0) < last.get("sent", 0):
+            self._processes[service] += 1
             # counters start again from 0: the service was restarted; keep what the
             # previous process counted
             base = self._stats_base.setdefault(service, {})
@@ -190,6 +196,18 @@ class RunData:
         base = self._stats_base.get(service, {})
         self.stats[service] = {k: base.get(k, 0) + counters.get(k, 0) for k in base | counters}
         self.stats_t[service] = max(t, self.stats_t.get(service, -math.inf))
+
+    def unrecorded(self) -> dict[str, int]:
+        """Messages each service published that never reached the monitor: what its stats say
+        it sent (each process's last stats count what it sent before them, the stats message
+        itself not included) against what arrived from it.  A process ended without final
+        stats (kill -9) sent more than its stats say: it can hide a loss, never invent one."""
+        lost = {}
+        for service, counters in self.stats.items():
+            sent = int(counters.get("sent", 0)) + self._processes.get(service, 0)
+            if (n := sent - self.ingested_from.get(service, 0)) > 0:
+                lost[service] = n
+        return lost
 
     # -- derived quantities -----------------------------------------------------------------
 

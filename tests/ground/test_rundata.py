@@ -37,8 +37,40 @@ def test_hill_states_match_rv_to_hill() -> None:
                                    rtol=1e-12, atol=1e-9)  # fmt: skip
 
 
-def _ingest(data: RunData, topic: str, schema: str, body: dict, t: float) -> None:
-    data.ingest(topic, decode(encode(schema, body, seq=0, t=t, src="test"), schema))
+def _ingest(
+    data: RunData, topic: str, schema: str, body: dict, t: float, src: str = "test"
+) -> None:
+    data.ingest(topic, decode(encode(schema, body, seq=0, t=t, src=src), schema))
+
+
+def _log(data: RunData, service: str, t: float) -> None:
+    body = {"service": service, "level": "info", "text": "x"}
+    _ingest(data, topics.log_topic(service), "log", body, t, src=service)
+
+
+def _stats(data: RunData, service: str, sent: int, t: float) -> None:
+    body = {"service": service, "counters": {"sent": sent}}
+    _ingest(data, topics.stats_topic(service), "stats", body, t, src=service)
+
+
+def test_what_a_service_published_and_the_monitor_never_got_is_counted() -> None:
+    data = RunData(deployment_from_table({"deputy": [{"name": "alpha"}]}), "r")
+    for k in range(3):
+        _log(data, "nav-alpha", float(k))
+    _stats(data, "nav-alpha", 3, 3.0)  # three sent before its stats: all arrived
+    assert data.unrecorded() == {}
+    _log(data, "nav-alpha", 4.0)  # of the next three, one arrives
+    _stats(data, "nav-alpha", 7, 5.0)  # 3 + stats + 3
+    assert data.unrecorded() == {"nav-alpha": 2}
+    # a restarted process counts from 0 again; what it sent arrived
+    _log(data, "nav-alpha", 6.0)
+    _stats(data, "nav-alpha", 1, 7.0)
+    assert data.unrecorded() == {"nav-alpha": 2}
+    # one that sent more than its last stats say (killed before its final ones) invents none
+    for k in range(5):
+        _log(data, "ctrl-alpha", float(k))
+    _stats(data, "ctrl-alpha", 2, 1.0)
+    assert data.unrecorded() == {"nav-alpha": 2}
 
 
 def test_stats_of_a_restarted_service_add_up_and_the_final_clock_is_kept() -> None:
