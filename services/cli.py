@@ -178,6 +178,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     except DeploymentError as exc:
         print(f"ddvi run: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    from services.model import backend_missing
+
+    if (why := backend_missing(dep)) is not None:  # bad input, found before any launch
+        print(f"ddvi run: {args.deployment or 'rendezvous'}: {why}", file=sys.stderr)
+        return EXIT_USAGE
     launcher = Launcher(dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode)
     return launcher.execute()
 

@@ -18,8 +18,8 @@ import pytest
 
 from services.cli import main
 from services.ground.campaign import load_campaign
-from services.ground.campaign_store import read_rows
-from services.ground.dispersions import draw_run
+from services.ground.campaign.dispersions import draw_run
+from services.ground.campaign.store import read_rows
 from tests.support import wait_until
 
 pytestmark = pytest.mark.integration

@@ -7,12 +7,12 @@
     ddvi campaign FILE --resume                 # finish a killed campaign
     ddvi campaign FILE --only-run 17            # run 17 alone, here, bit for bit
 
-The campaign file (``services.ground.dispersions``) names a deployment, the number of runs, a
-campaign seed and the dispersions.  Every run's deployment and seed are drawn here, from the
+The campaign file (``services.ground.campaign.dispersions``) names a deployment, the number of
+runs, a campaign seed and the dispersions.  Every run's deployment and seed are drawn here, from the
 campaign seed and the run's index; the workers run the missions
-(``services.ground.campaign_run.execute``) and each row is committed to
-``<output>/results.sqlite`` as its run ends (``services.ground.campaign_store``), then the
-report (``services.ground.campaign_report``) is written beside it.  docs/campaigns.md.
+(``services.ground.campaign.run.execute``) and each row is committed to
+``<output>/results.sqlite`` as its run ends (``services.ground.campaign.store``), then the
+report (``services.ground.campaign.report``) is written beside it.  docs/campaigns.md.
 """
 
 from __future__ import annotations
@@ -28,9 +28,14 @@ from pathlib import Path
 from typing import Any
 
 from services.config import DeploymentError, deployment_from_table, read_table
-from services.ground.campaign_run import MODES, execute
-from services.ground.campaign_store import ResultStore, read_meta, read_rows
-from services.ground.dispersions import CampaignError, CampaignSpec, draw_run, spec_from_table
+from services.ground.campaign.dispersions import (
+    CampaignError,
+    CampaignSpec,
+    draw_run,
+    spec_from_table,
+)
+from services.ground.campaign.run import MODES, execute
+from services.ground.campaign.store import ResultStore, read_meta, read_rows
 from services.model import holding_warnings
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -61,7 +66,7 @@ def load_campaign(path: str) -> CampaignSpec:
 
 
 def task(spec: CampaignSpec, index: int, mode: str, keep: str | None = None) -> dict[str, Any]:
-    """Run ``index``'s task for :func:`services.ground.campaign_run.execute`, and its dispersed
+    """Run ``index``'s task for :func:`services.ground.campaign.run.execute`, and its dispersed
     values under ``values``."""
     table, values, seed = draw_run(spec, index)
     return {
@@ -264,7 +269,7 @@ def _execute(spec: CampaignSpec, folder: Path, mode: str, args: argparse.Namespa
 
 def campaign_command(args: argparse.Namespace) -> int:
     """0 when every run completed, 1 if one did not, 2 on bad input."""
-    from services.ground.campaign_report import summary_lines, write_report
+    from services.ground.campaign.report import summary_lines, write_report
 
     mode = MODES[1] if args.distributed else MODES[0]
     try:
