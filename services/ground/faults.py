@@ -45,6 +45,7 @@ from services.bus import (
     Bus,
     BusSettings,
     check_name,
+    error_text,
     open_session,
     queue_handler,
     wait_for_alive,
@@ -201,8 +202,7 @@ def _connect(stack: contextlib.ExitStack, bus: RunBus) -> zenoh.Session | None:
     try:
         return stack.enter_context(open_session(bus.settings()))
     except Exception as exc:  # zenoh.ZError: refused (credentials) or unreachable
-        first = (str(exc).splitlines() or [type(exc).__name__])[0]
-        print(f"ddvi fault: cannot connect to {bus.hub} ({first}); is run {bus.run!r} "
+        print(f"ddvi fault: cannot connect to {bus.hub} ({error_text(exc)}); is run {bus.run!r} "
               "running?", file=sys.stderr)  # fmt: skip
         return None
 
