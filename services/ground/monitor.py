@@ -142,6 +142,7 @@ class Monitor:
             else:
                 self.alive.discard(name)
             rec.alive(name, bool(value), recv_ns, self.data.sim_t)
+            self.counters["recorded"] = rec.messages
             return
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
         try:
