@@ -25,8 +25,12 @@ def _rows(M: np.ndarray) -> list[list[float]]:
 
 
 def _load(name: str):
-    from ddvi_core.systems import SystemFileError, load_system
+    """A built-in scenario, a system file, or a shipped example by name (``cart-pole``)."""
+    from ddvi_core.systems import BUILTIN_SYSTEMS, SystemFileError, load_system
+    from services.config.files import system_example
 
+    if name not in BUILTIN_SYSTEMS and (example := system_example(name)) is not None:
+        name = str(example)
     try:
         return load_system(name)
     except SystemFileError as exc:
