@@ -105,7 +105,7 @@ def down(dep: Deployment) -> None:
 
 def add_netns_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi netns``, for ``services.cli``."""
-    p.add_argument("action", choices=("up", "down"))
+    p.add_argument("action", choices=("up", "down"), help="create or remove the namespaces")
     p.add_argument("deployment", help="a deployment with [[host]] tables")
     p.add_argument(
         "--delay", type=float, default=0.0, help="netem delay on each link, s (0.05: 50 ms)"
