@@ -80,7 +80,7 @@ class Status:
         deputies also x, sigma3 and a learner's data, each field named."""
         d = self.data
         parts = [f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
-                 f"({d.sim_t / d.period:.2f} of {d.duration / d.period:g} orbits)"]  # fmt: skip
+                 f"({d.sim_t / d.period:.2f} of {d.duration / d.period:.2f} orbits)"]  # fmt: skip
         compact = len(d.dep.deputy) > COMPACT_ABOVE
         for dep in d.dep.deputy:
             s = d.live(dep)
