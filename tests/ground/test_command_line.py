@@ -225,3 +225,27 @@ def test_campaigns_and_examples_are_found_by_name_from_any_folder(
     assert campaign_file("deployments/campaigns/rendezvous-200.toml") == shipped.resolve()
     assert campaign_file("no-such-campaign") is None
     assert system_example("cart-pole") == (ROOT / "docs/examples/systems/cart-pole.toml").resolve()
+
+
+@pytest.mark.integration  # flies a mission to its early end (a third of an orbit)
+def test_a_run_the_truth_ends_early_says_why_and_where(tmp_path: Path) -> None:
+    """The environment's exit is said with the reason its log gives and the log's path, and
+    the monitor's log agrees with the report that the mission did not complete."""
+    table = read_table("rendezvous")
+    table["environment"]["min_altitude"] = 299.7e3  # the chief decays below it within an orbit
+    table["run"]["orbits"] = 2.0
+    import tomli_w
+
+    path = tmp_path / "reentry.toml"
+    path.write_bytes(tomli_w.dumps(table).encode())
+    r = subprocess.run([sys.executable, "-m", "services.cli", "run", str(path), "--quiet",
+                        "--output", str(tmp_path / "runs")], capture_output=True, text=True,
+                       timeout=600)  # fmt: skip
+    assert r.returncode == 1, r.stderr[-3000:]
+    (folder,) = (tmp_path / "runs").iterdir()
+    log = folder / "logs" / "environment.log"
+    said = "environment exited with status 3: mission ended early: chief fell to 299.7 km"
+    assert said in r.stderr and f"(log: {log})" in r.stderr, r.stderr[-3000:]
+    monitor_log = (folder / "logs" / "monitor.log").read_text()
+    assert "(completed=False," in monitor_log and "(completed=True," not in monitor_log
+    assert "- completed: **no**" in (folder / "report.md").read_text()
