@@ -298,8 +298,9 @@ def campaign_command(args: argparse.Namespace) -> int:
     try:
         return _campaign(args)
     except Stopped as exc:
-        print(f"ddvi campaign: stopped by {exc}; its finished runs are in the table: the same "
-              "command with --resume continues it", file=sys.stderr)  # fmt: skip
+        end = "" if sys.stderr.isatty() else "\n"  # a plain progress line ends unterminated
+        print(f"{end}ddvi campaign: stopped by {exc}; its finished runs are in the table: the "
+              "same command with --resume continues it", file=sys.stderr)  # fmt: skip
         return 128 + exc.signum
     finally:
         for sig, handler in previous.items():
