@@ -197,12 +197,18 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     return int(monitor_command(args) or 0)
 
 
+SYSTEM_HELP = (
+    "a built-in scenario (ddvi scenarios), a TOML system file, or an example's name "
+    "(cart-pole: docs/examples/systems)"
+)
+
+
 def _learn_arguments(p: argparse.ArgumentParser) -> None:
     from ddvi_core.solve import METHODS
 
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = METHOD_HELP
-    p.add_argument("system", help="built-in scenario name or TOML system file")
+    p.add_argument("system", help=SYSTEM_HELP)
     p.add_argument(
         "--method",
         choices=METHODS,
@@ -245,7 +251,7 @@ def _run_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _check_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("system", help="built-in scenario name or TOML system file")
+    p.add_argument("system", help=SYSTEM_HELP)
     p.add_argument("--json", action="store_true", help="the checks as one JSON object on stdout")
     p.set_defaults(func=cmd_check)
 
