@@ -76,20 +76,31 @@ class Status:
         return table
 
     def _line(self) -> str:
-        """One plain progress line: every deputy's along-track error and phase; with a few
-        deputies also x, sigma3 and a learner's data, each field named."""
+        """One plain progress line, each field named: with a few deputies, every deputy's
+        along-track error, phase, x, sigma3 and a learner's data; with more, each one's error
+        alone (and a learner's phase), so that the line stays short."""
         d = self.data
-        parts = [f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
-                 f"({d.sim_t / d.period:.2f} of {d.duration / d.period:.2f} orbits)"]  # fmt: skip
-        compact = len(d.dep.deputy) > COMPACT_ABOVE
+        head = (f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
+                f"({d.sim_t / d.period:.2f} of {d.duration / d.period:.2f} orbits)")  # fmt: skip
+        if len(d.dep.deputy) > COMPACT_ABOVE:
+            parts = [f"{head} y-y_ref"]
+            for dep in d.dep.deputy:
+                s = d.live(dep)
+                phase = f" {s.get('phase', '-')}" if _learner(s) else ""
+                parts.append(f"{dep.name}: {_f(s.get('ey'), '+.1f')} m{phase}")
+            return " | ".join(parts)
+        parts = [head]
         for dep in d.dep.deputy:
             s = d.live(dep)
-            part = f"{dep.name}: y-y_ref={_f(s.get('ey'), '+.1f')} m {s.get('phase', '-')}"
-            if not compact:
-                part += f" x={_f(s.get('x'), '+.1f')} m sigma3={_f(s.get('sigma3'), '+.3f')}"
-                if _learner(s):
-                    part += (f" samples={s['samples']} intervals={s['intervals']} "
-                             f"rank={s['rank']}/{s['rank_needed']}")  # fmt: skip
+            ey, x, sigma3 = (
+                _f(s.get("ey"), "+.1f"),
+                _f(s.get("x"), "+.1f"),
+                _f(s.get("sigma3"), "+.3f"),
+            )
+            part = f"{dep.name}: y-y_ref={ey} m {s.get('phase', '-')} x={x} m sigma3={sigma3}"
+            if _learner(s):
+                part += (f" samples={s['samples']} intervals={s['intervals']} "
+                         f"rank={s['rank']}/{s['rank_needed']}")  # fmt: skip
             parts.append(part)
         return " | ".join(parts)
 
