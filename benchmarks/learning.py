@@ -266,7 +266,7 @@ def _print_table(rows: list[dict]) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--json", action="store_true", help="the rows as one JSON list on stdout")
     ap.add_argument("--repeat", type=int, default=3, help="best of N runs per figure")
     ap.add_argument("--only", choices=("builtin", "suite"), default=None)
     args = ap.parse_args()

@@ -5,7 +5,8 @@
     ddvi bench --json     # one JSON list of rows on stdout
 
 Each row gives the project's figure, the baseline's, and the cost ratio (above 1: the project
-is slower or bigger than its baseline).  Benchmarks are not tests: nothing here asserts.
+is slower or bigger than its baseline); a row whose target bounds that ratio (``<= 1.3``,
+``<= 2x; ...``) gets a verdict, met or missed.  Benchmarks are not tests: nothing here asserts.
 """
 
 from __future__ import annotations
@@ -17,13 +18,16 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse
 import json
 import math
+import operator
 import platform
+import re
 import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 BENCHMARKS: dict[str, str] = {
@@ -49,10 +53,45 @@ def _fmt(value: float) -> str:
     return f"{value:.2e}"
 
 
+_RATIO_TARGET = re.compile(r"^\s*(<=|<|>=|>)\s*([0-9]*\.?[0-9]+)\s*x?\s*(?:;|$)")
+_COMPARE = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt}
+
+
+def verdict(row: dict[str, Any]) -> str | None:
+    """ "met" or "missed" when the row's target bounds its cost ratio (it starts ``<= 1.3`` or
+    ``<= 2x;``), "missed" for a ratio not measured; None when the target bounds something
+    else (a gain error, a wall time) or there is none."""
+    match = _RATIO_TARGET.match(str(row.get("target", "")))
+    if match is None:
+        return None
+    ratio = row.get("cost_ratio")
+    if not isinstance(ratio, int | float) or not math.isfinite(ratio):
+        return "missed"
+    return "met" if _COMPARE[match.group(1)](ratio, float(match.group(2))) else "missed"
+
+
+def plain_json(value: Any) -> Any:
+    """``value`` with every non-finite float (a failed benchmark's NaN) as None, numpy
+    scalars as Python numbers: what ``json.dumps`` writes as valid JSON."""
+    if isinstance(value, dict):
+        return {k: plain_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain_json(v) for v in value]
+    if hasattr(value, "item") and not isinstance(value, str):  # a numpy scalar
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="ddvi bench", description=__doc__)
     parser.add_argument("--quick", action="store_true", help="short versions, about a minute")
-    parser.add_argument("--json", action="store_true", help="machine-readable rows on stdout")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON object on stdout: meta, and the rows (a value not measured is null)",
+    )
     parser.add_argument(
         "--only", nargs="+", choices=list(BENCHMARKS), help="run only these benchmarks"
     )
@@ -73,23 +112,39 @@ def run(args: argparse.Namespace) -> int:
                     "target": ""}]  # fmt: skip
         for row in got:
             row["seconds"] = time.perf_counter() - t0
+            row["verdict"] = verdict(row)
         rows.extend(got)
     if args.json:
         meta = {"quick": args.quick, "python": platform.python_version(), "cpus": os.cpu_count()}
-        print(json.dumps({"meta": meta, "rows": rows}, default=float))
+        print(json.dumps(plain_json({"meta": meta, "rows": rows}), allow_nan=False))
         return 0
-    table = Table(title=f"ddvi bench{' --quick' if args.quick else ''} ({os.cpu_count()} CPUs)")
+    print_table(rows, args.quick)
+    return 0
+
+
+def print_table(rows: list[dict[str, Any]], quick: bool) -> None:
+    """The rows as a table on stdout, every text shown literally (``'.[basilisk]'`` is not
+    rich markup)."""
+    table = Table(title=f"ddvi bench{' --quick' if quick else ''} ({os.cpu_count()} CPUs)")
     for col in ("benchmark", "metric", "unit", "project", "baseline", "baseline is", "ratio",
-                "target"):  # fmt: skip
+                "target", "verdict"):  # fmt: skip
         table.add_column(
             col, justify="right" if col in ("project", "baseline", "ratio") else "left"
         )
     for r in rows:
-        table.add_row(r["benchmark"], r["metric"], r["unit"], _fmt(r["project"]),
-                      _fmt(r["baseline"]), r["baseline_name"], _fmt(r["cost_ratio"]),
-                      r["target"])  # fmt: skip
+        texts = (
+            r["benchmark"],
+            r["metric"],
+            r["unit"],
+            _fmt(r["project"]),
+            _fmt(r["baseline"]),
+            r["baseline_name"],
+            _fmt(r["cost_ratio"]),
+            r["target"],
+            r.get("verdict") or "",
+        )
+        table.add_row(*(escape(str(t)) for t in texts))  # fmt: skip
     Console(width=200).print(table)
-    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,8 +25,12 @@ def _rows(M: np.ndarray) -> list[list[float]]:
 
 
 def _load(name: str):
-    from ddvi_core.systems import SystemFileError, load_system
+    """A built-in scenario, a system file, or a shipped example by name (``cart-pole``)."""
+    from ddvi_core.systems import BUILTIN_SYSTEMS, SystemFileError, load_system
+    from services.config.files import system_example
 
+    if name not in BUILTIN_SYSTEMS and (example := system_example(name)) is not None:
+        name = str(example)
     try:
         return load_system(name)
     except SystemFileError as exc:
@@ -178,6 +182,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     except DeploymentError as exc:
         print(f"ddvi run: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    from services.model import backend_missing
+
+    if (why := backend_missing(dep)) is not None:  # bad input, found before any launch
+        print(f"ddvi run: {args.deployment or 'rendezvous'}: {why}", file=sys.stderr)
+        return EXIT_USAGE
     launcher = Launcher(dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode)
     return launcher.execute()
 
@@ -188,14 +197,38 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     return int(monitor_command(args) or 0)
 
 
+SYSTEM_HELP = (
+    "a built-in scenario (ddvi scenarios), a TOML system file, or an example's name "
+    "(cart-pole: docs/examples/systems)"
+)
+
+
 def _learn_arguments(p: argparse.ArgumentParser) -> None:
     from ddvi_core.solve import METHODS
 
-    p.add_argument("system", help="built-in scenario name or TOML system file")
-    p.add_argument("--method", choices=METHODS, default="ddvi")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = METHOD_HELP
+    p.add_argument("system", help=SYSTEM_HELP)
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="ddvi",
+        help="how the gains are computed (default: ddvi); the methods are listed below",
+    )
     p.add_argument("--seed", type=seed, default=None, help="exploration seed (ddvi)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="the result as one JSON object on stdout")
     p.set_defaults(func=cmd_learn)
+
+
+METHOD_HELP = """methods (docs/methods.md):
+  lqr     the algebraic Riccati equation, from the model (the reference)
+  pi      Kleinman's policy iteration on the model; starts from learning.K0, or a detuned
+          LQR gain when K0 does not stabilise
+  vi      value iteration on the model (the paper's Algorithm 1)
+  ddvi    data-driven value iteration (Algorithm 2): learns from simulated, explored data
+          alone, never reading A or B (the default)
+  dpi     policy iteration on the same data; needs a stabilising learning.K0
+  hybrid  value iteration on the data until the gain stabilises, then policy iteration"""
 
 
 def _run_arguments(p: argparse.ArgumentParser) -> None:
@@ -218,8 +251,8 @@ def _run_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _check_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("system", help="built-in scenario name or TOML system file")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("system", help=SYSTEM_HELP)
+    p.add_argument("--json", action="store_true", help="the checks as one JSON object on stdout")
     p.set_defaults(func=cmd_check)
 
 
@@ -393,12 +426,23 @@ def _run_command(args: argparse.Namespace) -> int:
         return 130
 
 
+def package_version() -> str:
+    """The installed ddvi-fsw's version ("unknown" when run from a tree never installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ddvi-fsw")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The ``ddvi`` parser; with ``command``, only that command's arguments are built (the
     others are listed by name and help alone)."""
     parser = Parser(
         prog="ddvi", description="Data-driven value iteration for spacecraft rendezvous."
     )
+    parser.add_argument("--version", action="version", version=f"ddvi {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (text, add_arguments) in COMMANDS.items():
         p = sub.add_parser(name, help=text)
@@ -408,12 +452,23 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    try:
+        return _main(sys.argv[1:] if argv is None else argv)
+    except BrokenPipeError:
+        # stdout's reader left (``ddvi scenarios | head -1``): end quietly, as a pipe's
+        # writer does; stdout goes to /dev/null so that the interpreter's last flush is quiet
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_FAIL
+
+
+def _main(argv: list[str]) -> int:
     command = next((a for a in argv if not a.startswith("-")), None)
     if command == "bench" and (why := _benchmarks_missing()):
         print(why, file=sys.stderr)
         return EXIT_USAGE
-    args = build_parser(command if command in COMMANDS else None).parse_args(argv)
+    # only the command's own arguments are built (none for ``ddvi --version``)
+    args = build_parser(command if command in COMMANDS else "").parse_args(argv)
     if (why := non_finite_argument(args)) is not None:
         print(f"ddvi {args.command}: {why}", file=sys.stderr)
         return EXIT_USAGE

@@ -27,6 +27,7 @@ from services.bus.session import (
     SERVICE_ZENOH_RUNTIME,
     BusSettings,
     check_name,
+    error_text,
     open_session,
     zenoh_config,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "SequenceGuards",
     "budget_for",
     "check_name",
+    "error_text",
     "impairs_truth",
     "message_count",
     "open_session",

@@ -133,6 +133,16 @@ def open_session(settings: BusSettings) -> Iterator[zenoh.Session]:
         session.close()
 
 
+_RUST_SOURCE = re.compile(r"\s*\bat /\S+\.rs:\d+\.?")
+
+
+def error_text(exc: BaseException) -> str:
+    """A zenoh error (or any) as one line for a user: its first line, without the Rust source
+    path zenoh appends (`` at /root/.cargo/.../orchestrator.rs:447.``)."""
+    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return _RUST_SOURCE.sub("", first).strip() or type(exc).__name__
+
+
 def check_name(what: str, name: str) -> str:
     """Validate a run or service name (one key-expression chunk, no wildcards)."""
     if not isinstance(name, str) or not _NAME.match(name):

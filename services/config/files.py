@@ -3,7 +3,8 @@
 Named deployments live in the repository's ``deployments/`` folder; an installed package
 carries the same files (the wheel's data files, ``<prefix>/share/ddvi-fsw/deployments``), so
 ``ddvi run`` finds them without a source checkout.  :func:`resolve` looks in the source tree
-first, then in the installed location.
+first, then in the installed location; so do :func:`campaign_file` (``deployments/campaigns``)
+and :func:`system_example` (``docs/examples/systems``, installed the same way).
 """
 
 from __future__ import annotations
@@ -20,10 +21,12 @@ from services.config.validation import deployment_from_table
 
 __all__ = [
     "DEPLOYMENTS_DIR",
+    "campaign_file",
     "deployment_dirs",
     "load_deployment",
     "read_table",
     "resolve",
+    "system_example",
     "write_deployment",
 ]
 
@@ -49,6 +52,41 @@ def deployment_dirs() -> list[Path]:
         if folder.is_dir() and folder.resolve() not in found:
             found.append(folder.resolve())
     return found
+
+
+def shared_dirs(relative: str) -> list[Path]:
+    """The folders of the repository's ``relative`` (``docs/examples/systems``) in search
+    order: the source tree's, then the installed package's data files (share/ddvi-fsw/...);
+    only those that exist."""
+    candidates = [DEPLOYMENTS_DIR.parent / relative]
+    for scheme in (sysconfig.get_default_scheme(), sysconfig.get_preferred_scheme("user")):
+        candidates.append(Path(sysconfig.get_path("data", scheme)) / "share/ddvi-fsw" / relative)
+    found: list[Path] = []
+    for folder in candidates:
+        if folder.is_dir() and folder.resolve() not in found:
+            found.append(folder.resolve())
+    return found
+
+
+def _shipped(name_or_path: str, folders: list[Path]) -> Path | None:
+    """A file by path, else by its name (or its path's file name) in the first of ``folders``
+    that has it: ``rendezvous-200`` and ``deployments/campaigns/rendezvous-200.toml`` from any
+    working directory."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    stem = p.name.removesuffix(".toml")
+    return next((f / f"{stem}.toml" for f in folders if (f / f"{stem}.toml").is_file()), None)
+
+
+def campaign_file(name_or_path: str) -> Path | None:
+    """A campaign file by path, or a shipped one by name (``rendezvous-200``); None if none."""
+    return _shipped(name_or_path, [d / "campaigns" for d in deployment_dirs()])
+
+
+def system_example(name_or_path: str) -> Path | None:
+    """A system file by path, or a shipped example by name (``cart-pole``); None if none."""
+    return _shipped(name_or_path, shared_dirs("docs/examples/systems"))
 
 
 def resolve(name_or_path: str | None) -> Path:

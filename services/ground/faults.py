@@ -45,9 +45,11 @@ from services.bus import (
     Bus,
     BusSettings,
     check_name,
+    error_text,
     open_session,
     queue_handler,
     wait_for_alive,
+    watch_alive,
 )
 from services.bus.security import OPERATOR
 from services.config import check_panel
@@ -169,13 +171,28 @@ def _params(args: argparse.Namespace, target: str) -> tuple[dict[str, Any], str 
     return {}, target
 
 
+def _link_answerers(session: zenoh.Session, run: str, target: str) -> set[str]:
+    """The running services a link fault for ``target`` (a subscriber glob) reaches, each of
+    which answers: those alive that match it, but the monitor (it records unimpaired)."""
+    found: set[str] = set()
+    sub = watch_alive(session, run, target, lambda name, alive: alive and found.add(name))
+    try:
+        time.sleep(0.3)  # the tokens there now arrive as history, at once
+    finally:
+        sub.undeclare()
+    return {name for name in found if name not in ("monitor", "launcher")}
+
+
 def _publish_and_wait(
     session: zenoh.Session, args: argparse.Namespace, run: str, target: str,
     params: dict[str, Any], t: float,
 ) -> int | None:  # fmt: skip
-    """Publish the fault at simulation time ``t`` and print the acting service's answer;
-    its exit status, or None when no answer came within ``args.timeout``."""
+    """Publish the fault at simulation time ``t`` and print the answer of every service that
+    acts on it (a link fault: each one its glob matches); its exit status (1 when one ignored
+    or refused it, or did not answer), or None when no answer came within ``args.timeout``."""
+    expected = _link_answerers(session, run, target) if args.kind == "link" else set()
     answers: queue.SimpleQueue = queue.SimpleQueue()
+    answered: dict[str, bool] = {}  # service -> whether it acted
     with Bus(session, run, f"ground-{os.getpid()}") as bus:
         bus.subscribe(topics.log_topic("*"), queue_handler(answers), expected_schema="log")
         time.sleep(0.2)  # let the subscription reach the service before it answers
@@ -183,16 +200,22 @@ def _publish_and_wait(
         bus.publish(topics.fault_topic(args.kind), "fault", body, t)
         print(f"ddvi fault: {args.kind} {target} sent at t = {t:.0f} s")
         deadline = time.monotonic() + args.timeout
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not (answered and expected <= set(answered)):
             try:
                 _, msg = answers.get(timeout=0.1)
             except queue.Empty:
                 continue
-            text = msg.body["text"]
-            if text.startswith(f"fault {args.kind} {target}:"):
-                print(f"{msg.body['service']}: {text}")
-                return 1 if ": ignored" in text or ": refused" in text else 0
-    return None
+            text, service = msg.body["text"], msg.body["service"]
+            if text.startswith(f"fault {args.kind} {target}:") and service not in answered:
+                print(f"{service}: {text}")
+                answered[service] = ": ignored" not in text and ": refused" not in text
+    if not answered:
+        return None
+    if missing := sorted(expected - set(answered)):
+        print(f"ddvi fault: no answer from {', '.join(missing)} within {args.timeout:g} s",
+              file=sys.stderr)  # fmt: skip
+        return 1
+    return 0 if all(answered.values()) else 1
 
 
 def _connect(stack: contextlib.ExitStack, bus: RunBus) -> zenoh.Session | None:
@@ -201,8 +224,7 @@ def _connect(stack: contextlib.ExitStack, bus: RunBus) -> zenoh.Session | None:
     try:
         return stack.enter_context(open_session(bus.settings()))
     except Exception as exc:  # zenoh.ZError: refused (credentials) or unreachable
-        first = (str(exc).splitlines() or [type(exc).__name__])[0]
-        print(f"ddvi fault: cannot connect to {bus.hub} ({first}); is run {bus.run!r} "
+        print(f"ddvi fault: cannot connect to {bus.hub} ({error_text(exc)}); is run {bus.run!r} "
               "running?", file=sys.stderr)  # fmt: skip
         return None
 

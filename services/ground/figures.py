@@ -16,6 +16,7 @@ import numpy as np
 from services.ground.rundata import CraftData, DeputySeries, FloatArray, RunData
 
 K_NAMES = ("x", "y", "xdot", "ydot")  # the in-plane state the gain K acts on (mission.IN_PLANE)
+K_UNITS = ("1/m", "1/m", "s/m", "s/m")  # u = sigma3 (an MRP, no unit) per unit of that state
 FIGURES = {
     "hill_x.png": "Hill x (radial) position vs orbits",
     "hill_y.png": "Hill y (along-track) position vs orbits",
@@ -59,6 +60,13 @@ class Canvas:
         self.written.append(name)
 
 
+def legend(ax: Any) -> None:
+    """The axes' legend, when it has a labelled line (a run that failed early may have none:
+    no legend then, and no matplotlib warning)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="best", fontsize="small")
+
+
 def line_figure(
     canvas: Canvas,
     name: str,
@@ -87,8 +95,7 @@ def line_figure(
     ax.set_ylabel(ylabel)
     ax.set_title(canvas.title(name))
     ax.grid(True, alpha=0.3)
-    if canvas.series:
-        ax.legend(loc="best", fontsize="small")
+    legend(ax)
     canvas.save(fig, name)
 
 
@@ -103,9 +110,19 @@ def hill_xy_figure(canvas: Canvas) -> None:
     ax.set_ylabel("x (radial) [m]")
     ax.set_title(canvas.title("hill_xy.png"))
     ax.grid(True, alpha=0.3)
-    if canvas.series:
-        ax.legend(loc="best", fontsize="small")
+    legend(ax)
     canvas.save(fig, "hill_xy.png")
+
+
+def _show_references(ax: Any, values: list[float]) -> None:
+    """Widen the y axis to the reference lines' ``values``, with a margin (axhline takes no
+    part in autoscaling: a reference just beside the learned gain would sit on the frame)."""
+    if not values:
+        return
+    lo, hi = ax.get_ylim()
+    lo, hi = min(lo, *values), max(hi, *values)
+    pad = 0.06 * (hi - lo) if hi > lo else 0.06 * abs(hi) or 1.0
+    ax.set_ylim(lo - pad, hi + pad)
 
 
 def gains_figure(canvas: Canvas) -> None:
@@ -116,10 +133,15 @@ def gains_figure(canvas: Canvas) -> None:
     data = canvas.data
     P = data.period
     fig, axes = canvas.plt.subplots(
-        2, 2, figsize=(10, 6.5), sharex=True, gridspec_kw={**MARGINS, "top": 0.89, "hspace": 0.25}
+        2,
+        2,
+        figsize=(10, 6.5),
+        sharex=True,
+        gridspec_kw={**MARGINS, "top": 0.89, "hspace": 0.25, "wspace": 0.32},
     )
     learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller != "lqr"]
     for c, ax in enumerate(axes.flat):
+        refs: list[float] = []
         for j, s in learners:
             color = canvas.color(j)
             gains = data.craft.get(s.deputy.name, CraftData()).gains
@@ -129,18 +151,28 @@ def gains_figure(canvas: Canvas) -> None:
                 if data.sim_t > gains[-1].t:  # hold the last gain to the end of the run
                     t, k = np.append(t, data.sim_t / P), np.append(k, k[-1])
                 ax.step(t, k, where="post", color=color, lw=1.2, label=f"{s.label} K")
+            # the LQR gain wide and pale under K*, thin and dark on top: both stay visible
+            # where they coincide (a nominal truth)
             if s.K_lqr.size > c:
-                ax.axhline(float(s.K_lqr.flat[c]), color=color, ls="--", lw=1.0,
-                           label=f"{s.deputy.name} LQR")  # fmt: skip
+                refs.append(float(s.K_lqr.flat[c]))
+                ax.axhline(refs[-1], color=color, ls="--", lw=3.0, alpha=0.45,
+                           label=f"{s.deputy.name} nominal LQR")  # fmt: skip
             if s.K_true is not None and s.K_true.size > c:
-                ax.axhline(float(s.K_true.flat[c]), color=color, ls=":", lw=1.6,
-                           label=f"{s.deputy.name} true K*")  # fmt: skip
-        ax.set_title(f"K[{K_NAMES[c] if c < len(K_NAMES) else c}]")
+                same = s.K_lqr.size > c and np.isclose(s.K_true.flat[c], s.K_lqr.flat[c])
+                label = f"{s.deputy.name} true K*" + (" (= LQR)" if same else "")
+                refs.append(float(s.K_true.flat[c]))
+                ax.axhline(refs[-1], color="black", ls=":", lw=1.4, zorder=3,
+                           label=label)  # fmt: skip
+        _show_references(ax, refs)
+        name = K_NAMES[c] if c < len(K_NAMES) else str(c)
+        unit = f" [{K_UNITS[c]}]" if c < len(K_UNITS) else ""
+        ax.set_title(f"K[{name}]")
+        ax.set_ylabel(f"K[{name}]{unit}")
         ax.grid(True, alpha=0.3)
         if c >= 2:
             ax.set_xlabel("time [orbits]")
     if learners:
-        axes.flat[0].legend(loc="best", fontsize="small")
+        legend(axes.flat[0])
     else:
         axes.flat[0].text(
             0.5, 0.5, "no learning deputy", ha="center", transform=axes.flat[0].transAxes

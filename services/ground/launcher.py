@@ -32,7 +32,7 @@ from typing import IO, Any
 
 import zenoh
 
-from services.bus import Bus, BusSettings, open_session, queue_handler
+from services.bus import Bus, BusSettings, error_text, open_session, queue_handler
 from services.config import Deployment
 from services.flight.health import HANG_STATUS
 from services.ground import credentials, lifecycle
@@ -215,7 +215,7 @@ class Launcher:
             try:
                 session = stack.enter_context(open_session(self._hub_settings()))
             except Exception as exc:  # zenoh.ZError: a port in use, an endpoint unreachable
-                first = (str(exc).splitlines() or [type(exc).__name__])[0]
+                first = error_text(exc)
                 # nothing ran: leave no run folder behind
                 shutil.rmtree(self.out, ignore_errors=True)
                 self.say(f"cannot open the bus (port {self.port}, connect "
@@ -374,7 +374,9 @@ class Launcher:
         if env.returncode == HANG_STATUS:
             return self._hung("environment")
         if env.returncode != 0:
-            self.say(f"environment exited with status {env.returncode}; see its log", error=True)
+            log = self.out / "logs" / "environment.log"
+            self.say(f"environment exited with status {env.returncode}: "
+                     f"{lifecycle.log_reason(log)} (log: {log})", error=True)  # fmt: skip
             return 1
         return self._await_report(monitor, started)
 

@@ -89,6 +89,16 @@ def last_lines(path: Path, n: int = LOG_TAIL, limit: int = 16384) -> list[str]:
     return [line for line in text.splitlines() if line.strip()][-n:]
 
 
+def log_reason(path: Path) -> str:
+    """Why a service ended, from its log: its last ERROR line's message (without the time and
+    the service's name), else its last line; "its log is empty" when there is none."""
+    lines = last_lines(path, n=LOG_TAIL * 4)
+    errors = [line.split(" ERROR ", 1)[1] for line in lines if " ERROR " in line]
+    if errors:
+        return errors[-1]
+    return lines[-1] if lines else "its log is empty"
+
+
 def await_alive(
     session: zenoh.Session,
     run: str,

@@ -142,6 +142,7 @@ class Monitor:
             else:
                 self.alive.discard(name)
             rec.alive(name, bool(value), recv_ns, self.data.sim_t)
+            self.counters["recorded"] = rec.messages
             return
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
         try:
@@ -400,7 +401,7 @@ def _report(ctx: ServiceContext, mon: Monitor, completed: bool) -> int:
     log.info(
         "report written to %s (completed=%s, %d messages recorded, %d rejected)",
         ctx.out,
-        completed,
+        summary["completed"],  # the report's word: the final clock at the planned end
         mon.counters["recorded"],
         mon.counters["rejected"],
     )

@@ -4,8 +4,9 @@ Each [[host]] k of a deployment is a network namespace joined to the launcher's 
 veth pair ``ddvi<k>h`` (launcher side, 10.77.<k>.1/24) and ``ddvi<k>n`` (host side,
 10.77.<k>.2/24).  The launcher (the run's Zenoh router) listens on 10.77.<k>.1 for host k; the
 services there connect to it over the pair, so every message between hosts crosses a real
-network interface, where ``tc netem`` can delay and lose it (``--delay MS --loss PCT``, where
-the kernel has the netem qdisc).  Needs root (CAP_NET_ADMIN) and the ``ip`` command.
+network interface, where ``tc netem`` can delay and lose it (``--delay S --loss P``: seconds and a
+probability, as ``[[link]]``, ``ddvi fault link`` and ``ddvi sweep`` take them; where the kernel
+has the netem qdisc).  Needs root (CAP_NET_ADMIN) and the ``ip`` command.
 """
 
 from __future__ import annotations
@@ -55,9 +56,22 @@ def exists(netns: str) -> bool:
     return Path("/var/run/netns", netns).exists()
 
 
-def up(dep: Deployment, delay_ms: float = 0.0, loss_pct: float = 0.0) -> list[str]:
-    """Create every [[host]]'s namespace and link (idempotent: an existing one is remade);
-    returns what was done, a line each."""
+MAX_DELAY = 60.0  # s: a wall-time delay beyond it stalls the lock-step; surely meant in ms
+
+
+def netem_problem(delay: float, loss: float) -> str | None:
+    """Why a netem delay (s) or loss (probability) cannot be used, in one line, or None."""
+    if not 0.0 <= delay <= MAX_DELAY:
+        return f"--delay {delay:g}: seconds in [0, {MAX_DELAY:g}] (0.05 for 50 ms)"
+    if not 0.0 <= loss <= 1.0:
+        return f"--loss {loss:g}: a probability in [0, 1] (0.01 for 1 %)"
+    return None
+
+
+def up(dep: Deployment, delay: float = 0.0, loss: float = 0.0) -> list[str]:
+    """Create every [[host]]'s namespace and link (idempotent: an existing one is remade),
+    with netem's ``delay`` (s) and ``loss`` (probability) on each link; returns what was done,
+    a line each."""
     done = []
     down(dep)
     for k, h in enumerate(dep.host):
@@ -71,13 +85,13 @@ def up(dep: Deployment, delay_ms: float = 0.0, loss_pct: float = 0.0) -> list[st
         _ip("link", "set", inner, "up", netns=h.netns)
         _ip("link", "set", "lo", "up", netns=h.netns)
         done.append(f"{h.netns}: {inner} {SUBNET}.{k}.2 <-> {outer} {hub_address(k)}")
-        if delay_ms or loss_pct:
+        if delay or loss:
             netem = ["tc", "qdisc", "add", "dev", outer, "root", "netem"]
-            netem += ["delay", f"{delay_ms}ms", "loss", f"{loss_pct}%"]
+            netem += ["delay", f"{delay * 1e3:g}ms", "loss", f"{loss * 100:g}%"]
             r = subprocess.run(netem, capture_output=True, text=True)
             if r.returncode != 0:
                 raise NetnsError(f"{' '.join(netem)}: {r.stderr.strip()}")
-            done.append(f"{outer}: netem delay {delay_ms} ms, loss {loss_pct} %")
+            done.append(f"{outer}: netem delay {delay:g} s, loss {loss:g}")
     return done
 
 
@@ -91,10 +105,14 @@ def down(dep: Deployment) -> None:
 
 def add_netns_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi netns``, for ``services.cli``."""
-    p.add_argument("action", choices=("up", "down"))
+    p.add_argument("action", choices=("up", "down"), help="create or remove the namespaces")
     p.add_argument("deployment", help="a deployment with [[host]] tables")
-    p.add_argument("--delay", type=float, default=0.0, help="netem delay on each link, ms")
-    p.add_argument("--loss", type=float, default=0.0, help="netem loss on each link, %%")
+    p.add_argument(
+        "--delay", type=float, default=0.0, help="netem delay on each link, s (0.05: 50 ms)"
+    )
+    p.add_argument(
+        "--loss", type=float, default=0.0, help="netem loss on each link, probability in [0, 1]"
+    )
     return p
 
 
@@ -111,6 +129,9 @@ def netns_command(args: argparse.Namespace) -> int:
     if args.action == "down":
         down(dep)
         return 0
+    if (why := netem_problem(args.delay, args.loss)) is not None:
+        print(f"ddvi netns: {why}", file=sys.stderr)
+        return 2
     if (why := available()) is not None:
         print(f"ddvi netns: {why}", file=sys.stderr)
         return 1

@@ -14,9 +14,20 @@ def _f(v: Any, fmt: str) -> str:
     return "-" if v is None else format(v, fmt)
 
 
+RANK_LEGEND = (
+    "s/i/rank: a learner's samples gathered / learning intervals closed / rank of its data : "
+    "the rank it needs to learn"
+)
+COMPACT_ABOVE = 2  # deputies: with more, a plain progress line shows each one's error alone
+
+
+def _learner(s: dict[str, Any]) -> bool:
+    return "samples" in s and s.get("mode") != "lqr"
+
+
 def _rank(s: dict[str, Any]) -> str:
     """A learner's progress, samples/intervals/rank:rank needed ("-" for LQR)."""
-    if "samples" not in s or s.get("mode") == "lqr":
+    if not _learner(s):
         return "-"
     return f"{s['samples']}/{s['intervals']}/{s['rank']}:{s['rank_needed']}"
 
@@ -48,7 +59,7 @@ class Status:
             f"{d.duration / d.period:.2f} orbits)  recorded {counters.get('recorded', 0)}  "
             f"rejected {counters.get('rejected', 0)}"
         )
-        table = Table(title=title, title_justify="left", expand=False)
+        table = Table(title=title, title_justify="left", expand=False, caption=RANK_LEGEND)
         for col in ("deputy", "orbits", "y - y_ref [m]", "x [m]", "sigma3", "phase", "s/i/rank"):
             table.add_column(col, justify="left" if col in ("deputy", "phase") else "right")
         for dep in d.dep.deputy:
@@ -65,15 +76,32 @@ class Status:
         return table
 
     def _line(self) -> str:
+        """One plain progress line, each field named: with a few deputies, every deputy's
+        along-track error, phase, x, sigma3 and a learner's data; with more, each one's error
+        alone (and a learner's phase), so that the line stays short."""
         d = self.data
-        parts = [f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
-                 f"({d.sim_t / d.period:.2f} orbits)"]  # fmt: skip
+        head = (f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
+                f"({d.sim_t / d.period:.2f} of {d.duration / d.period:.2f} orbits)")  # fmt: skip
+        if len(d.dep.deputy) > COMPACT_ABOVE:
+            parts = [f"{head} y-y_ref"]
+            for dep in d.dep.deputy:
+                s = d.live(dep)
+                phase = f" {s.get('phase', '-')}" if _learner(s) else ""
+                parts.append(f"{dep.name}: {_f(s.get('ey'), '+.1f')} m{phase}")
+            return " | ".join(parts)
+        parts = [head]
         for dep in d.dep.deputy:
             s = d.live(dep)
-            parts.append(
-                f"{dep.name}: y-y_ref={_f(s.get('ey'), '+.2f')} x={_f(s.get('x'), '+.2f')} "
-                f"sigma3={_f(s.get('sigma3'), '+.3f')} {s.get('phase', '-')} s/i/rank={_rank(s)}"
+            ey, x, sigma3 = (
+                _f(s.get("ey"), "+.1f"),
+                _f(s.get("x"), "+.1f"),
+                _f(s.get("sigma3"), "+.3f"),
             )
+            part = f"{dep.name}: y-y_ref={ey} m {s.get('phase', '-')} x={x} m sigma3={sigma3}"
+            if _learner(s):
+                part += (f" samples={s['samples']} intervals={s['intervals']} "
+                         f"rank={s['rank']}/{s['rank_needed']}")  # fmt: skip
+            parts.append(part)
         return " | ".join(parts)
 
     def update(self, counters: dict[str, int]) -> None:

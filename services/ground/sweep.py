@@ -76,6 +76,7 @@ __all__ = [
     "noisy_table",
     "summary_rows",
     "sweep",
+    "unlearned_points",
 ]
 
 VELOCITY_NOISE_RATIO = 1e-3
@@ -197,8 +198,30 @@ def infeasible_points(
     ]
 
 
-def _point_text(point: dict[str, Any]) -> str:
-    return ", ".join(f"{k} = {v:g}" for k, v in point.items())
+def _point_text(kind: str, point: dict[str, Any]) -> str:
+    """A run's point in words: ``delay = 60 s``, ``loss = 0.2 (probability)``, ``noise = 1 m,
+    mismatch = 2``."""
+    if kind in ("delay", "loss"):
+        unit = " s" if kind == "delay" else " (probability)"
+        return f"{kind} = {point['value']:g}{unit} on the nav -> ctrl and ctrl -> environment links"
+    return f"noise = {point['noise']:g} m, mismatch = {point['mismatch']:g}"
+
+
+def unlearned_points(
+    runs: list[tuple[dict[str, Any], dict[str, Any], str]],
+) -> list[tuple[dict[str, Any], str]]:
+    """(point, why) of every learning deputy whose run ends before it is scheduled to learn
+    (learning.learn_at_orbits at or past run.orbits): its gain error is then unmeasured."""
+    out = []
+    for point, table, _ in runs:
+        dep = deployment_from_table(table)
+        for d in dep.deputy:
+            at = d.learning.learn_at_orbits
+            if d.controller != "lqr" and at >= dep.run.orbits:
+                out.append((point, f"deputy {d.name!r} learns at orbit {at:g} but the run ends "
+                            f"at orbit {dep.run.orbits:g}: it will not learn; give --orbits "
+                            f"above {at:g}"))  # fmt: skip
+    return out
 
 
 def _orbits_per_mismatch(orbits: list[float] | None, mismatches: list[float]) -> list:
@@ -282,13 +305,19 @@ def sweep(
     base = load_deployment(str(resolve(deployment)))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     folder = Path(output or base.run.output) / f"sweep-{kind}-{base.run.name}-{stamp}"
-    # up front: which points fly a deputy that no attitude lets hold its slot
-    for point, why in infeasible_points(runs):
-        print(f"ddvi sweep: {_point_text(point)}: warning: {why}", file=sys.stderr, flush=True)
+    if kind == "noise":
+        print(f"ddvi sweep: noise: each value is the navigation position noise (m, 1 sigma per "
+              f"axis); velocity noise {VELOCITY_NOISE_RATIO:g} (m/s)/m times it is added too",
+              file=sys.stderr, flush=True)  # fmt: skip
+    # up front: which points fly a deputy that no attitude lets hold its slot, or that ends
+    # before a learner learns
+    for point, why in infeasible_points(runs) + unlearned_points(runs):
+        print(f"ddvi sweep: {_point_text(kind, point)}: warning: {why}", file=sys.stderr,
+              flush=True)  # fmt: skip
     rows: list[dict[str, Any]] = []
     for point, table, stem in runs:
         path = write_deployment(table, folder / "deployments", stem)
-        print(f"ddvi sweep: {_point_text(point)} ...", file=sys.stderr, flush=True)
+        print(f"ddvi sweep: {_point_text(kind, point)} ...", file=sys.stderr, flush=True)
         if in_process:
             rows.extend(inprocess_rows(point, load_deployment(str(path))))
         elif (summary := _launch(path, folder, quiet)) is not None:

@@ -1,11 +1,15 @@
 """``ddvi monitor [KEYEXPR]``: a tap on the bus that prints every message, one line each.
 
-    ddvi monitor --run RUN [KEYEXPR] [--output ROOT] [--count N] [--seconds S]
-    ddvi monitor 'ddvi/<run>/**' --hub H [--count N] [--seconds S]
+    ddvi monitor --run RUN [TOPICS] [--output ROOT] [--count N] [--seconds S]
+    ddvi monitor --run RUN 'ctrl/*/status'           # a topic pattern below the run's keys
+    ddvi monitor --run RUN 'ddvi/<run>/ctrl/*/status'  # the same, as a full key expression
+    ddvi monitor 'ctrl/*/status' --hub H [--count N] [--seconds S]
 
 ``--run`` finds a run by its folder (what ``ddvi run`` prints) or its name under ``--output``:
 its hub from the folder's ``bus.json`` and, on a secure bus, the observer's credentials (a
-subscribe-only user) from its ``security/`` folder; KEYEXPR defaults to the run's keys.
+subscribe-only user) from its ``security/`` folder; TOPICS (a topic pattern such as
+``ctrl/*/status``, or a full ``ddvi/<run>/...`` key expression) defaults to every topic; a
+pattern that matches no topic of the topology is refused.
 ``--hub`` taps an insecure bus directly.  A sample that holds a batch prints one line per
 message; one that does not decode prints why it is rejected.  The tap is a plain zenoh
 subscriber: it records nothing and keeps no state.
@@ -17,6 +21,7 @@ import argparse
 import contextlib
 import json
 import queue
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -25,15 +30,21 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
+from services.bus import EPHEMERAL_LOOPBACK, BusSettings, error_text, open_session
 from services.bus.security import OBSERVER
 from services.ground.credentials import RunNotFoundError, find_run
-from services.interface import MessageError, decode, unpack_batch
+from services.interface import TOPOLOGY, MessageError, decode, unpack_batch
 
 
 def add_monitor_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi monitor``, for ``services.cli``."""
-    p.add_argument("keyexpr", nargs="?", help="zenoh key expression (default: the run's keys)")
+    p.add_argument(
+        "keyexpr",
+        nargs="?",
+        metavar="TOPICS",
+        help="a topic pattern such as 'ctrl/*/status' or 'nav/**' (or a full key expression "
+        "'ddvi/<run>/ctrl/*/status'); default: every topic of the run",
+    )
     p.add_argument("--run", help="the run folder ddvi run prints, or the run's name")
     p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
     p.add_argument("--hub", help="an insecure bus's endpoint to connect to (instead of --run)")
@@ -75,6 +86,39 @@ def format_sample(key: str, payload: bytes) -> list[str]:
     return lines
 
 
+def topic_patterns() -> list[str]:
+    """Every topic of the topology as a key expression (its placeholders as ``*``)."""
+    return [re.sub(r"<[a-z]+>", "*", route.topic) for route in TOPOLOGY]
+
+
+def run_keyexpr(run: str, pattern: str | None) -> str:
+    """The key expression of ``pattern`` on run ``run`` (``*`` for any run): a topic pattern
+    (``ctrl/*/status``) is put below ``ddvi/<run>/``; a full one (``ddvi/*/ctrl/*/status``)
+    has its run part made ``run``.  ValueError (one line) when it names another run or
+    matches no topic of the topology."""
+    if not pattern:
+        return f"ddvi/{run}/**"
+    parts = pattern.strip("/").split("/")
+    if parts[0] == "ddvi" and len(parts) > 1:
+        named = parts[1]
+        if named not in ("*", "**", run) and run != "*":
+            raise ValueError(f"{pattern!r} names run {named!r}, not this run ({run!r}): give "
+                             "a topic pattern such as 'ctrl/*/status'")  # fmt: skip
+        if named != "**":
+            run = named if run == "*" else run
+        parts = (["**"] if named == "**" else []) + parts[2:]
+    topics = "/".join(parts) or "**"
+    try:
+        key = zenoh.KeyExpr(topics)
+    except zenoh.ZError:
+        raise ValueError(f"{pattern!r} is not a key expression (segments separated by /, "
+                         "* for one segment, ** for any number)") from None  # fmt: skip
+    known = topic_patterns()
+    if not any(key.intersects(zenoh.KeyExpr(t)) for t in known):
+        raise ValueError(f"{pattern!r} matches no topic; the topics are {', '.join(known)}")
+    return f"ddvi/{run}/{topics}"
+
+
 def _tap_settings(args: argparse.Namespace) -> tuple[BusSettings, str]:
     """The tap's session settings and key expression, from ``--run`` or ``--hub``; ValueError
     (one line) when neither names a bus."""
@@ -83,11 +127,11 @@ def _tap_settings(args: argparse.Namespace) -> tuple[BusSettings, str]:
             bus = find_run(args.run, args.output, OBSERVER)
         except RunNotFoundError as exc:
             raise ValueError(str(exc)) from exc
-        return bus.settings(), args.keyexpr or f"ddvi/{bus.run}/**"
+        return bus.settings(), run_keyexpr(bus.run, args.keyexpr)
     if not args.hub:
         raise ValueError("give --run RUN (the run folder ddvi run prints) or an insecure --hub")
     settings = BusSettings(mode="peer", listen=[EPHEMERAL_LOOPBACK], connect=[args.hub])
-    return settings, args.keyexpr or "ddvi/**"
+    return settings, run_keyexpr("*", args.keyexpr)
 
 
 def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None = None) -> int:
@@ -99,14 +143,13 @@ def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None 
         settings, keyexpr = _tap_settings(args)
         zenoh.KeyExpr(keyexpr)
     except (ValueError, zenoh.ZError) as exc:
-        print(f"ddvi monitor: {str(exc).split(' at /')[0]}", file=sys.stderr)
+        print(f"ddvi monitor: {error_text(exc)}", file=sys.stderr)
         return 2
     with contextlib.ExitStack() as stack:
         try:
             session = stack.enter_context(open_session(settings))
         except zenoh.ZError as exc:
-            first = (str(exc).splitlines() or ["refused"])[0]
-            print(f"ddvi monitor: cannot connect to {settings.connect[0]} ({first})",
+            print(f"ddvi monitor: cannot connect to {settings.connect[0]} ({error_text(exc)})",
                   file=sys.stderr)  # fmt: skip
             return 1
         _print_samples(session, keyexpr, emit, int(args.count or 0), float(args.seconds or 0.0))

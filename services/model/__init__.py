@@ -9,7 +9,7 @@ May import: ``ddvi_core``, ``services.config``. Not the bus, processes or tools.
 deployment asks for it.
 """
 
-from services.model.backends import open_truth
+from services.model.backends import backend_missing, open_truth
 from services.model.mission import (
     IN_PLANE,
     describe_panel,
@@ -44,6 +44,7 @@ __all__ = [
     "BuiltinTruth",
     "ReentryError",
     "Truth",
+    "backend_missing",
     "describe_panel",
     "duration",
     "exostate",

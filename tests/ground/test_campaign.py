@@ -12,16 +12,16 @@ import pytest
 
 from services.cli import main
 from services.config import read_table
-from services.ground import campaign_store
 from services.ground.campaign import load_campaign
-from services.ground.campaign_report import outcomes, write_report
-from services.ground.campaign_store import ResultStore, read_rows
-from services.ground.dispersions import (
+from services.ground.campaign import store as campaign_store
+from services.ground.campaign.dispersions import (
     CampaignError,
     draw_run,
     run_stream,
     spec_from_table,
 )
+from services.ground.campaign.report import outcomes, write_report
+from services.ground.campaign.store import ResultStore, read_rows
 
 CAMPAIGN = {
     "campaign": {"deployment": "rendezvous", "runs": 50, "seed": 7, "success_threshold": 20.0},
@@ -186,7 +186,7 @@ def test_the_report_counts_successes_and_lists_the_worst_runs(tmp_path: Path) ->
 
 
 def test_a_failed_mission_is_a_row_with_its_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    from services.ground import campaign_run
+    from services.ground.campaign import run as campaign_run
 
     def explode(dep):
         raise FloatingPointError("the truth diverged")
@@ -202,7 +202,7 @@ def test_a_failed_mission_is_a_row_with_its_error(monkeypatch: pytest.MonkeyPatc
 
 
 def test_a_run_gives_the_same_row_twice() -> None:
-    from services.ground.campaign_run import execute
+    from services.ground.campaign.run import execute
 
     table, _, seed = draw_run(spec(), 1)
     table["run"]["orbits"] = 0.3
@@ -216,7 +216,7 @@ def test_a_run_gives_the_same_row_twice() -> None:
 def test_a_campaign_tells_the_learners_apart() -> None:
     """Deputies are grouped by controller and learning method: the model-fit learner's runs
     are not counted with the paper's value iteration's."""
-    from services.ground.campaign_run import execute
+    from services.ground.campaign.run import execute
 
     path = Path(__file__).parents[2] / "deployments" / "campaigns" / "realistic-nav-20.toml"
     s = load_campaign(str(path))
@@ -234,7 +234,7 @@ def test_a_campaign_says_up_front_which_deputies_cannot_hold_their_slot(
 ) -> None:
     """A base deployment no attitude can hold is said once; else each drawn run that cannot,
     before it runs."""
-    from services.ground import campaign
+    from services.ground.campaign import command as campaign
 
     table = copy.deepcopy(CAMPAIGN)
     table["dispersion"].append({"key": "deputy[0].area_factor", "distribution": "choice",

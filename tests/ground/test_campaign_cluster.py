@@ -18,8 +18,8 @@ import pytest
 
 from services.cli import main
 from services.ground.campaign import load_campaign
-from services.ground.campaign_store import read_rows
-from services.ground.dispersions import draw_run
+from services.ground.campaign.dispersions import draw_run
+from services.ground.campaign.store import read_rows
 from tests.support import wait_until
 
 pytestmark = pytest.mark.integration
@@ -186,3 +186,30 @@ def test_a_killed_campaign_resumes_to_the_same_table(
     assert main(["campaign", str(path), "--output", str(out)]) == 2
     finish(ddvi(str(path), "--workers", "2", "--output", str(out), "--resume"))
     assert runs_table(out) == rows
+
+
+def test_sigterm_stops_a_campaign_in_order_and_resume_says_what_it_skips(
+    tmp_path: Path,
+) -> None:
+    """SIGTERM unwinds the campaign as Ctrl-C does: its LocalCluster closed (no semaphore
+    leaked), exit 143, the finished rows kept; --resume says how many runs it skips."""
+    path, out = campaign_file(tmp_path, 40), tmp_path / "stopped"
+    proc = ddvi(str(path), "--workers", "1", "--output", str(out))
+    try:
+        assert wait_until(lambda: _count(out / "results.sqlite") >= 1, 90.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    assert "ddvi campaign: stopped by SIGTERM" in err
+    assert "leaked" not in err and "Traceback" not in err, err[-2000:]
+    kept = len(runs_table(out))
+    assert 1 <= kept < 40
+    resumed = ddvi(str(path), "--workers", "1", "--output", str(out), "--resume")
+    try:
+        assert wait_until(lambda: _count(out / "results.sqlite") > kept, 90.0)
+    finally:
+        resumed.send_signal(signal.SIGTERM)
+        _, err = resumed.communicate(timeout=60)
+    assert f"resuming: {kept} of 40 runs are in the table already and skipped" in err, err

@@ -461,6 +461,11 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
                       "cmd/*/att", "--loss", "0.5")  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     assert "environment now receives cmd/*/att from ctrl-lqr with loss 0.5" in r.stdout
+    # a glob reaches every controller: each one's answer is printed
+    r = mission.fault("link", "--from", "nobody", "--to", "ctrl-*", "--delay", "0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    for ctrl in ("ctrl-lqr", "ctrl-ddvi"):
+        assert f"{ctrl}: fault link ctrl-*: {ctrl} now receives * from nobody" in r.stdout
     r = mission.fault("link", "--from", "nav/ddvi", "--to", "ctrl/ddvi", "--delay", "120")
     assert r.returncode == 0 and "ctrl-ddvi now receives * from nav-ddvi with delay 120" in (
         r.stdout), r.stdout + r.stderr  # fmt: skip

@@ -90,7 +90,7 @@ def test_netem_delay_and_loss_on_the_hosts_links(
 ) -> None:
     dep, path = multihost
     try:
-        netns.up(dep, delay_ms=2.0, loss_pct=1.0)
+        netns.up(dep, delay=0.002, loss=0.01)
     except netns.NetnsError as exc:
         pytest.skip(f"tc netem is not available here: {exc}")
     summary = _completed_summary(path, tmp_path / "runs")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 from pathlib import Path
 
 import pytest
@@ -166,3 +167,27 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
     assert recovered == streamed == summary["recovered"]["messages"] > 1000
     assert summary["completed"] is False and summary["outcome"]["ended_by"] == "stopped"
     assert f"({recovered} messages)" in err
+
+
+def test_a_regenerated_report_counts_every_record_once(tmp_path: Path) -> None:
+    """Liveliness records are recordings too: the report written again says the same number
+    of messages recorded as the recording holds (and as ``ddvi report`` reads); its figures,
+    without a deputy's data, draw no legend and say no warning."""
+    dep = tmp_path / "cut.toml"
+    dep.write_text(DEPLOYMENT)
+    folder = tmp_path / "run"
+    rec = Recorder(folder / RECORDING, {"run": "cut-1", "deployment": str(dep)}, attachment=dep)
+    rec.alive("nav-lqr", True, log_ns=1, t=0.0)
+    for k in range(10):
+        rec.message(topics.CLOCK, _clock(k), log_ns=2 + k)
+    rec.alive("nav-lqr", False, log_ns=20, t=90.0)
+    rec.close()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = recover(folder)
+    # a run with no deputy data draws its figures without a legend, and without a warning
+    assert not [str(w.message) for w in caught if "legend" in str(w.message)]
+    assert got.messages == 12 == _standard_count(folder / RECORDING)
+    assert got.summary["messages"]["recorded"] == 12
+    assert got.summary["messages"]["services"]["monitor"]["received"] == 10
+    assert "Messages: 12 recorded by the monitor" in (folder / "report.md").read_text()

@@ -14,9 +14,10 @@ import pytest
 
 import services.flight.inprocess
 from services.config import deployment_from_table, read_table
-from services.ground import campaign_run, report
-from services.ground.campaign_report import stats_table
-from services.ground.dispersions import spec_from_table
+from services.ground import report
+from services.ground.campaign import run as campaign_run
+from services.ground.campaign.dispersions import spec_from_table
+from services.ground.campaign.report import stats_table
 from services.ground.rundata import GainRecord, RunData
 from services.ground.scoring import NOT_LEARNED_TEXT
 from services.ground.sweep import inprocess_rows, summary_rows

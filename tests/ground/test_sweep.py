@@ -113,7 +113,7 @@ def test_a_point_no_attitude_can_hold_is_stated_before_its_run(
     names = [d["name"] for d in read_table("realistic-nav")["deputy"]]
     for name in names:
         assert (
-            f"ddvi sweep: noise = 1, mismatch = 0.7: warning: deputy {name!r} cannot hold a slot"
+            f"ddvi sweep: noise = 1 m, mismatch = 0.7: warning: deputy {name!r} cannot hold a slot"
             in said
         )
     out = capsys.readouterr().out

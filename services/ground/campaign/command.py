@@ -7,12 +7,12 @@
     ddvi campaign FILE --resume                 # finish a killed campaign
     ddvi campaign FILE --only-run 17            # run 17 alone, here, bit for bit
 
-The campaign file (``services.ground.dispersions``) names a deployment, the number of runs, a
-campaign seed and the dispersions.  Every run's deployment and seed are drawn here, from the
+The campaign file (``services.ground.campaign.dispersions``) names a deployment, the number of
+runs, a campaign seed and the dispersions.  Every run's deployment and seed are drawn here, from the
 campaign seed and the run's index; the workers run the missions
-(``services.ground.campaign_run.execute``) and each row is committed to
-``<output>/results.sqlite`` as its run ends (``services.ground.campaign_store``), then the
-report (``services.ground.campaign_report``) is written beside it.  docs/campaigns.md.
+(``services.ground.campaign.run.execute``) and each row is committed to
+``<output>/results.sqlite`` as its run ends (``services.ground.campaign.store``), then the
+report (``services.ground.campaign.report``) is written beside it.  docs/campaigns.md.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import tomllib
 import uuid
@@ -28,9 +29,15 @@ from pathlib import Path
 from typing import Any
 
 from services.config import DeploymentError, deployment_from_table, read_table
-from services.ground.campaign_run import MODES, execute
-from services.ground.campaign_store import ResultStore, read_meta, read_rows
-from services.ground.dispersions import CampaignError, CampaignSpec, draw_run, spec_from_table
+from services.config.files import campaign_file, deployment_dirs
+from services.ground.campaign.dispersions import (
+    CampaignError,
+    CampaignSpec,
+    draw_run,
+    spec_from_table,
+)
+from services.ground.campaign.run import MODES, execute
+from services.ground.campaign.store import ResultStore, read_meta, read_rows
 from services.model import holding_warnings
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -39,9 +46,13 @@ BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 def load_campaign(path: str) -> CampaignSpec:
     """A checked campaign file; CampaignError (one line naming the key) if it cannot run.  Its
     deployment is a name, a path from the working directory or one from the file's folder."""
-    file = Path(path)
-    if not file.is_file():
-        raise CampaignError(f"{path}: no such campaign file")
+    file = campaign_file(path)
+    if file is None:
+        shipped = sorted(
+            p.stem for d in deployment_dirs() for p in (d / "campaigns").glob("*.toml")
+        )
+        raise CampaignError(f"{path}: no such campaign file or name; shipped: "
+                            + (", ".join(shipped) or "none"))  # fmt: skip
     try:
         table = tomllib.loads(file.read_text())
     except tomllib.TOMLDecodeError as exc:
@@ -61,7 +72,7 @@ def load_campaign(path: str) -> CampaignSpec:
 
 
 def task(spec: CampaignSpec, index: int, mode: str, keep: str | None = None) -> dict[str, Any]:
-    """Run ``index``'s task for :func:`services.ground.campaign_run.execute`, and its dispersed
+    """Run ``index``'s task for :func:`services.ground.campaign.run.execute`, and its dispersed
     values under ``values``."""
     table, values, seed = draw_run(spec, index)
     return {
@@ -164,6 +175,9 @@ def run_campaign(
 
     done = store.done()
     todo = [i for i in range(spec.campaign.runs) if i not in done]
+    if done:
+        print(f"ddvi campaign: resuming: {len(done)} of {spec.campaign.runs} runs are in the "
+              f"table already and skipped; {len(todo)} to run", file=sys.stderr)  # fmt: skip
     token = uuid.uuid4().hex[:8]
     tasks = {i: task(spec, i, mode) for i in todo}
     _say_holding(spec, tasks)
@@ -254,6 +268,8 @@ def _execute(spec: CampaignSpec, folder: Path, mode: str, args: argparse.Namespa
 
     with closing(ResultStore.open(folder / "results.sqlite", spec, mode, args.resume)) as store:
         if set(range(spec.campaign.runs)) <= store.done():
+            print(f"ddvi campaign: all {spec.campaign.runs} runs are in {folder} already; "
+                  "nothing to run (the report is written again)", file=sys.stderr)  # fmt: skip
             return
         try:
             with dask_client(args.workers, args.scheduler, args.dashboard) as client:
@@ -262,9 +278,37 @@ def _execute(spec: CampaignSpec, folder: Path, mode: str, args: argparse.Namespa
             raise CampaignError(f"cannot reach the cluster: {exc}") from None
 
 
+class Stopped(BaseException):  # as KeyboardInterrupt: no `except Exception` takes it
+    """SIGTERM or SIGHUP: unwind as Ctrl-C does, so that the cluster's processes and their
+    semaphores are closed (not leaked) and the table keeps every finished run."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _stop(signum: int, _frame: Any) -> None:
+    raise Stopped(signum)
+
+
 def campaign_command(args: argparse.Namespace) -> int:
-    """0 when every run completed, 1 if one did not, 2 on bad input."""
-    from services.ground.campaign_report import summary_lines, write_report
+    """0 when every run completed, 1 if one did not, 2 on bad input, 128 + N when stopped
+    by signal N."""
+    previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        return _campaign(args)
+    except Stopped as exc:
+        end = "" if sys.stderr.isatty() else "\n"  # a plain progress line ends unterminated
+        print(f"{end}ddvi campaign: stopped by {exc}; its finished runs are in the table: the "
+              "same command with --resume continues it", file=sys.stderr)  # fmt: skip
+        return 128 + exc.signum
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _campaign(args: argparse.Namespace) -> int:
+    from services.ground.campaign.report import summary_lines, write_report
 
     mode = MODES[1] if args.distributed else MODES[0]
     try:

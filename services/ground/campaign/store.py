@@ -23,8 +23,8 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
-from services.ground.campaign_run import ROWS_VERSION, deputy_columns
-from services.ground.dispersions import CampaignError, CampaignSpec
+from services.ground.campaign.dispersions import CampaignError, CampaignSpec
+from services.ground.campaign.run import ROWS_VERSION, deputy_columns
 
 FIXED = ["run", "seed", "completed", "error"]
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from ddvi_core.learning_config import LearningConfig
 from services.config import controller_label
-from services.ground.dispersions import CampaignSpec
+from services.ground.campaign.dispersions import CampaignSpec
 
 PERCENTILES = (50, 90, 95, 99)
 WORST = 5  # runs listed per controller
@@ -175,7 +175,7 @@ def summary_lines(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
 
 def write_report(spec: CampaignSpec, folder: Path, rows: list[dict[str, Any]], mode: str) -> Path:
     """Write report.md and its figures in ``folder``; return report.md's path."""
-    from services.ground.campaign_figures import error_figure, scatter_figure
+    from services.ground.campaign.figures import error_figure, scatter_figure
 
     c = spec.campaign
     failed = [r for r in rows if not r["completed"]]

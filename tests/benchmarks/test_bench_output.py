@@ -1,0 +1,69 @@
+"""What ``ddvi bench`` prints: its table shows every text literally, its ``--json`` is valid
+JSON (a value not measured is null), and a ratio with a target gets a met/missed verdict."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import pytest
+
+from benchmarks import run as bench
+
+
+def _row(metric: str, ratio: float, target: str) -> dict:
+    return {"benchmark": "fake", "metric": metric, "unit": "s", "project": ratio,
+            "baseline": 1.0, "baseline_name": "plain [bold]", "cost_ratio": ratio,
+            "target": target}  # fmt: skip
+
+
+ROWS = [
+    _row("skipped: Basilisk is not installed (pip install -e '.[basilisk]')", math.nan, ""),
+    _row("within", 1.2, "<= 1.3"),
+    _row("beyond", 4.1, "<= 2x; 40 orbits < 30 s"),
+    _row("not a ratio target", 9.0, "|dK|/|K*| < 0.01"),
+]
+
+
+@pytest.fixture
+def fake_benchmarks(monkeypatch: pytest.MonkeyPatch) -> None:
+    def explode(quick: bool) -> list[dict]:
+        raise RuntimeError("no [cluster] here")
+
+    monkeypatch.setattr(bench, "BENCHMARKS", {"fake": "fake", "broken": "broken"})
+    loaders = {"fake": lambda quick: [dict(r) for r in ROWS], "broken": explode}
+    monkeypatch.setattr(bench, "_load", loaders.__getitem__)
+
+
+def _args(**kw: object) -> argparse.Namespace:
+    return argparse.Namespace(**{"quick": True, "json": False, "only": None, **kw})
+
+
+def test_a_ratio_with_a_target_gets_a_verdict() -> None:
+    assert [bench.verdict(r) for r in ROWS] == [None, "met", "missed", None]
+    assert bench.verdict({"target": "<= 1.3", "cost_ratio": math.nan}) == "missed"
+    assert bench.verdict({"target": "> 2", "cost_ratio": 3.0}) == "met"
+
+
+def test_json_is_valid_and_a_value_not_measured_is_null(
+    fake_benchmarks: None, capsys: pytest.CaptureFixture
+) -> None:
+    assert bench.run(_args(json=True)) == 0
+    text = capsys.readouterr().out
+    doc = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
+    rows = doc["rows"]
+    assert rows[0]["project"] is None and rows[0]["cost_ratio"] is None
+    assert [r["verdict"] for r in rows[:4]] == [None, "met", "missed", None]
+    failed = rows[4]
+    assert failed["metric"] == "FAILED: no [cluster] here" and failed["project"] is None
+
+
+def test_the_table_shows_brackets_literally(
+    fake_benchmarks: None, capsys: pytest.CaptureFixture
+) -> None:
+    assert bench.run(_args()) == 0
+    out = capsys.readouterr().out
+    assert "pip install -e '.[basilisk]'" in out
+    assert "plain [bold]" in out and "FAILED: no [cluster] here" in out
+    assert "| met" in out.replace("│", "|") and "| missed" in out.replace("│", "|")
