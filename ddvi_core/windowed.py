@@ -3,9 +3,10 @@ by integrals, for data whose samples carry navigation noise.
 
 On an interval [a, b] the paper's regression equates the value increment
 x(b)^T P x(b) - x(a)^T P x(a) with the integral of its derivative.  Both end points are single
-noisy samples: with a navigation filter that passes its velocity measurement's white noise
-through (1 mm/s, 0.6 m in the iteration's units against a 15 m signal), that error dominates
-every increment.  Multiplying the same identity by a window g that vanishes at a and b and
+noisy samples: with a navigation filter that passes most of its velocity measurement's white
+noise through (0.7 of 1 mm/s, 0.6 m in the iteration's units against a 15-30 m signal), their
+error is the largest in the regression (docs/methods.md, "Value iteration through navigation
+noise").  Multiplying the same identity by a window g that vanishes at a and b and
 integrating by parts gives
 
     integral of g d(xbar^T P xbar) = g(b) xbar(b)^T P xbar(b) - integral of g' xbar^T P xbar,
