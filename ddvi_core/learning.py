@@ -89,7 +89,8 @@ class IntervalData:
     """Interval integrals of rho intervals (N = n + q).
 
     W (rho, N, N), G (rho, N, m), w_start (rho, N), w_end (rho, N), t_start (rho,),
-    t_end (rho,)."""
+    t_end (rho,); ``increments`` (rho, N, N): a windowed collector's value-increment matrices
+    (None: the increments are taken between the end points)."""
 
     n: int
     m: int
@@ -100,6 +101,7 @@ class IntervalData:
     w_end: NDArray[np.float64]
     t_start: NDArray[np.float64]
     t_end: NDArray[np.float64]
+    increments: NDArray[np.float64] | None = None
 
     @property
     def intervals(self) -> int:
@@ -118,6 +120,7 @@ class IntervalData:
             self.w_end[keep],
             self.t_start[keep],
             self.t_end[keep],
+            None if self.increments is None else self.increments[keep],
         )
 
 
@@ -203,14 +206,19 @@ class IntervalCollector:
                 self.discarded += self._start is not None and self._start[0] < t0
                 self._open(t, w)
             else:
-                self._acc_W += 0.5 * dt * (np.outer(w0, w0) + np.outer(w, w))
-                self._acc_G += 0.5 * dt * np.outer(w0 + w, u0)
+                self._accumulate(t0, w0, u0, t, w)
                 if t - self._start[0] >= self.interval - 1e-9 * self.interval:
                     self._close(t, w)
         else:
             self._open(t, w)
         self._last = (t, w, u)
         self.samples += 1
+
+    def _accumulate(self, t0: float, w0: NDArray, u0: NDArray, t: float, w: NDArray) -> None:
+        """Add the segment from the sample (t0, w0), with u0 held, to the sample (t, w)."""
+        dt = t - t0
+        self._acc_W += 0.5 * dt * (np.outer(w0, w0) + np.outer(w, w))
+        self._acc_G += 0.5 * dt * np.outer(w0 + w, u0)
 
     def _open(self, t: float, w: NDArray) -> None:
         self._start = (t, w)
@@ -456,7 +464,7 @@ def learn_from_data(
     S = _state_scale(data, state_scale)
     sc = _scaling(Q, S, w0, m)
     Q_s, R_s = sc.weights(Q, R)
-    scaled = scale_intervals(data.W, data.G, data.w_start, data.w_end, w0, S)
+    scaled = scale_intervals(data.W, data.G, data.w_start, data.w_end, w0, S, data.increments)
     X_list = exostate_offsets(C, F, S, n, q)
     X_off = 0.0 if translation is None else _translation_offset(data, translation, E) / S[:, None]
     thetas = equilibrated_thetas(n, m, q, X_list, X_off, R_s, scaled)

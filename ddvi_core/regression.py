@@ -41,24 +41,36 @@ __all__ = [
 class ScaledIntervals:
     """Interval integrals in the iteration's units (tau = w0 t, x = S x_s).
 
-    W (rho, N, N), G (rho, N, m), w_start (rho, N), w_end (rho, N)."""
+    W (rho, N, N), G (rho, N, m), w_start (rho, N), w_end (rho, N); ``increments`` (rho, N, N)
+    the matrices D_l whose contraction with T^T P T is the value increment of interval l (a
+    windowed collector's, :class:`ddvi_core.learning.IntervalCollector`), or None: the
+    increment is taken between the end points."""
 
     W: NDArray[np.float64]
     G: NDArray[np.float64]
     w_start: NDArray[np.float64]
     w_end: NDArray[np.float64]
+    increments: NDArray[np.float64] | None = None
 
 
 def scale_intervals(
-    W: NDArray, G: NDArray, w_start: NDArray, w_end: NDArray, w0: float, S: NDArray
+    W: NDArray,
+    G: NDArray,
+    w_start: NDArray,
+    w_end: NDArray,
+    w0: float,
+    S: NDArray,
+    increments: NDArray | None = None,
 ) -> ScaledIntervals:
-    """Scale the integrals W (rho, N, N), G (rho, N, m) and end points (rho, N) to tau = w0 t
-    and w = diag(S, I_q) w_s, for state scales S (n,): dt = dtau / w0, so integrals gain w0."""
+    """Scale the integrals W (rho, N, N), G (rho, N, m), end points (rho, N) and increments
+    (rho, N, N, or None) to tau = w0 t and w = diag(S, I_q) w_s, for state scales S (n,):
+    dt = dtau / w0, so integrals gain w0; an increment (a window's derivative times dt) does
+    not."""
     q = W.shape[1] - S.size
     sw = np.concatenate([S, np.ones(q)])
-    return ScaledIntervals(
-        w0 * W / np.outer(sw, sw)[None], w0 * G / sw[None, :, None], w_start / sw, w_end / sw
-    )
+    outer = np.outer(sw, sw)[None]
+    D = None if increments is None else increments / outer
+    return ScaledIntervals(w0 * W / outer, w0 * G / sw[None, :, None], w_start / sw, w_end / sw, D)
 
 
 def exostate_offsets(
@@ -87,7 +99,10 @@ def theta(
     I_x = M[:, rows, cols]
     Gu = np.einsum("ia,lak->lik", T, G).reshape(len(W), n * m)
     Gv = np.einsum("ia,lak->lik", T, W[:, :, n:]).reshape(len(W), n * q)
-    delta = vecv(we @ T.T) - vecv(ws @ T.T)
+    if data.increments is None:
+        delta = vecv(we @ T.T) - vecv(ws @ T.T)
+    else:  # tr(T D T^T P) = vecs(P) . (T D T^T)[rows, cols]
+        delta = np.einsum("ia,lab,jb->lij", T, data.increments, T)[:, rows, cols]
     Theta = np.hstack([I_x, 2.0 * Gu @ np.kron(np.eye(n), R), 2.0 * Gv])
     return Theta, delta
 
