@@ -402,9 +402,10 @@ def value_iteration(
     :func:`balanced_scaling`, False for the problem's own units, or a :class:`Scaling`.
     P0 is given in scaled units (default 1e-3 I, small against P* as docs/design.md,
     "Expected figures", advises).  ``tol`` bounds the scaled Riccati residual relative to |P_k|
-    at the stop (``rule`` "residual"), or the estimated |P - P*| / |P| (``rule`` "relative",
-    scale-free: see :mod:`ddvi_core.convergence`).  ``memory``: Anderson acceleration over
-    that many past steps (0: plain value iteration; :mod:`ddvi_core.anderson`).
+    at the stop (``rule`` "residual"), or the estimated |K - K*| / |K| (``rule`` "relative",
+    scale-free: see :mod:`ddvi_core.continuation`).  ``memory``: Anderson acceleration of
+    the explicit steps over that many past steps (0: plain value iteration;
+    :mod:`ddvi_core.anderson`).
     """
     A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
     n, m = B.shape
