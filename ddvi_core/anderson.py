@@ -15,8 +15,9 @@ sqrt(s) or fewer.  The extrapolation knows nothing of the cone or of the Riccati
 direction far from P*, so the loop accepts its iterate only while it is symmetric positive
 semidefinite, inside the current bound, and its estimated gain error (the relative stopping
 rule's measure) is no larger than the one of the iterate it was extrapolated from; otherwise
-it takes the plain step and forgets the history (:class:`AndersonHistory.restart`).  Every accepted plain step is value iteration's own, so
-the safeguarded iteration needs no more than value iteration does: no stabilising gain.
+it takes the plain step and forgets the history (:class:`AndersonHistory.restart`).  Every
+accepted plain step is value iteration's own, so the safeguarded iteration needs no more than
+value iteration does: no stabilising gain.
 """
 
 from __future__ import annotations
