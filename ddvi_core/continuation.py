@@ -17,7 +17,8 @@ gain: while the current gain leaves an unstable mode mu (Re mu > 0) in M, eps st
 1 / (2 Re mu), so I / eps - M keeps its eigenvalues in the right half-plane and the step moves
 P along the flow (the unstable mode grows, as it does under the flow, until the gain
 stabilises it); the flow from P0 >= 0 needs no stabilising gain either.  eps grows by at most
-GROWTH per step and by no more than keeps the relative change of P within TRUST.  The
+GROWTH per step, aiming at a change of P of STRIDE times its size (so it shrinks, by at most
+SHRINK, after a longer change), and without bound as the steps vanish near the fixed point.  The
 safeguard: a step that leaves the positive semidefinite cone is not taken and eps shrinks by
 SHRINK (the exact flow never leaves the cone, and a short implicit step is close to it); a
 step that leaves the bound B_r resets P to P0 with r + 1, as value iteration does.
@@ -41,6 +42,7 @@ from ddvi_core.convergence import TRUST, budget_report, euler_limit_of_modes
 __all__ = [
     "GROWTH",
     "SHRINK",
+    "STRIDE",
     "basis_images",
     "continuation_loop",
     "gain_error",
