@@ -1,6 +1,7 @@
 """Learning benchmark: every built-in scenario and every example system (docs/examples/systems)
 by every method, against the Riccati solve timed in the same run.  Run:
-``python benchmarks/learning.py`` (``--only builtin|suite``, ``--json``).  The learning time of
+``python benchmarks/learning.py`` (``--only builtin|suite``, ``--methods LABEL ...``,
+``--json``).  The learning time of
 a data-driven method leaves out the simulation of its data, reported apart."""
 
 from __future__ import annotations
@@ -244,15 +245,17 @@ def builtin_rows(repeat: int) -> list[dict]:
     return rows
 
 
-def suite_rows(repeat: int) -> list[dict]:
-    """Every example system (docs/examples/systems) by every method, with the settings derived
-    from the system; a method that cannot start (policy iteration without a stabilising K0)
-    is a row that says why."""
+def suite_rows(repeat: int, labels: tuple[str, ...] | None = None) -> list[dict]:
+    """Every example system (docs/examples/systems) by every method (those of ``labels``, the
+    row labels of SUITE_METHODS, if given), with the settings derived from the system; a
+    method that cannot start (policy iteration without a stabilising K0) is a row that says
+    why."""
     rows = []
+    chosen = [row for row in SUITE_METHODS if labels is None or row[0] in labels]
     for path in sorted(SUITE.glob("*.toml")):
         system = load_system(str(path))
         t_ref, _ = _timed(lambda s=system: solve(s, "lqr"), max(repeat, 20))
-        for label, method, overrides in SUITE_METHODS:
+        for label, method, overrides in chosen:
             run = dataclasses.replace(
                 system, learning=dataclasses.replace(system.learning, **overrides)
             )
@@ -290,9 +293,17 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--repeat", type=int, default=3, help="best of N runs per figure")
     ap.add_argument("--only", choices=("builtin", "suite"), default=None)
+    ap.add_argument(
+        "--methods",
+        nargs="+",
+        choices=[label for label, _, _ in SUITE_METHODS],
+        default=None,
+        help="the example systems' rows by these methods only",
+    )
     args = ap.parse_args()
     rows = [] if args.only == "suite" else builtin_rows(args.repeat)
-    rows += [] if args.only == "builtin" else suite_rows(args.repeat)
+    methods = None if args.methods is None else tuple(args.methods)
+    rows += [] if args.only == "builtin" else suite_rows(args.repeat, methods)
     if args.json:
         print(json.dumps(rows))
     else:
