@@ -1,8 +1,8 @@
 """Learning benchmark: every built-in scenario and every example system (docs/examples/systems)
 by every method, against the Riccati solve timed in the same run.  Run:
 ``python benchmarks/learning.py`` (``--only builtin|suite``, ``--methods LABEL ...``,
-``--json``).  The learning time of
-a data-driven method leaves out the simulation of its data, reported apart."""
+``--json``).  The learning time of a data-driven method leaves out the simulation of its data,
+reported apart."""
 
 from __future__ import annotations
 
