@@ -1,7 +1,8 @@
 """Learning benchmark: every built-in scenario and every example system (docs/examples/systems)
 by every method, against the Riccati solve timed in the same run.  Run:
-``python benchmarks/learning.py`` (``--only builtin|suite``, ``--json``).  The learning time of
-a data-driven method leaves out the simulation of its data, reported apart."""
+``python benchmarks/learning.py`` (``--only builtin|suite``, ``--methods LABEL ...``,
+``--json``).  The learning time of a data-driven method leaves out the simulation of its data,
+reported apart."""
 
 from __future__ import annotations
 
@@ -93,9 +94,15 @@ def _learning_row(metric: str, t: float, t_ref: float) -> dict:
     }
 
 
+EXPLICIT_STEP = {"step": "constant", "step_size": 0.01}
+"""Value iteration's explicit step on the mission (its step before the implicit one): the
+baseline the mission's implicit steps are measured against in the same run."""
+
+
 def learner_rows(system: System, quick: bool) -> list[dict]:
     """The learner run to its own stopping rule, then stopped at the fewest iterations that
-    reach K_TOLERANCE, each against the Riccati solve (best of 20)."""
+    reach K_TOLERANCE, each against the Riccati solve (best of 20); and the same learner by
+    value iteration's explicit constant step, to its own stopping rule."""
     t_ref, _ = _timed(lambda: solve(system, "lqr"), 20)
     t_ddvi, sol = _timed(lambda: solve(system, "ddvi"), 1 if quick else 3)
     err = reference_errors(system, sol)["K_error"]
@@ -103,13 +110,24 @@ def learner_rows(system: System, quick: bool) -> list[dict]:
         system,
         K_TOLERANCE,
         sol.iterations,
-        resolution=sol.iterations // (16 if quick else 1000),
+        resolution=max(1, sol.iterations // (16 if quick else 1000)),
         at_upper=(t_ddvi, err),  # the run above stopped by its own rule at sol.iterations
     )
+    explicit = dataclasses.replace(
+        system, learning=dataclasses.replace(system.learning, **EXPLICIT_STEP)
+    )
+    t_exp, sol_exp = _timed(lambda: solve(explicit, "ddvi"), 1)
+    err_exp = reference_errors(system, sol_exp)["K_error"]
     return [
         _learning_row(
             f"ddvi on the mission: {sol.iterations} iterations, |dK|/|K*| = {err:.1e}",
             t_ddvi,
+            t_ref,
+        ),
+        _learning_row(
+            f"ddvi on the mission by the explicit constant step: {sol_exp.iterations} "
+            f"iterations, |dK|/|K*| = {err_exp:.1e}",
+            t_exp,
             t_ref,
         ),
         _learning_row(
@@ -170,12 +188,16 @@ def collector_row(system: System) -> dict:
 
 SUITE = Path(__file__).resolve().parents[1] / "docs" / "examples" / "systems"
 
-# (row label, solve method, learning overrides): every method, and the paper's eps_k = 1/k in
-# place of the adaptive step for value iteration, model-based and from data
+# (row label, solve method, learning overrides): every method, and in place of the derived
+# implicit step the Anderson-accelerated explicit (adaptive) step and the paper's eps_k = 1/k,
+# for value iteration model-based and from data
+EXPLICIT = {"step": "adaptive", "step_size": 0.5}
 SUITE_METHODS = (
     ("vi", "vi", {}),
+    ("vi explicit", "vi", EXPLICIT),
     ("vi 1/k", "vi", {"step": "harmonic", "step_size": 1.0}),
     ("ddvi", "ddvi", {}),
+    ("ddvi explicit", "ddvi", EXPLICIT),
     ("ddvi 1/k", "ddvi", {"step": "harmonic", "step_size": 1.0}),
     ("dpi", "dpi", {}),
     ("hybrid", "hybrid", {}),
@@ -223,15 +245,17 @@ def builtin_rows(repeat: int) -> list[dict]:
     return rows
 
 
-def suite_rows(repeat: int) -> list[dict]:
-    """Every example system (docs/examples/systems) by every method, with the settings derived
-    from the system; a method that cannot start (policy iteration without a stabilising K0)
-    is a row that says why."""
+def suite_rows(repeat: int, labels: tuple[str, ...] | None = None) -> list[dict]:
+    """Every example system (docs/examples/systems) by every method (those of ``labels``, the
+    row labels of SUITE_METHODS, if given), with the settings derived from the system; a
+    method that cannot start (policy iteration without a stabilising K0) is a row that says
+    why."""
     rows = []
+    chosen = [row for row in SUITE_METHODS if labels is None or row[0] in labels]
     for path in sorted(SUITE.glob("*.toml")):
         system = load_system(str(path))
         t_ref, _ = _timed(lambda s=system: solve(s, "lqr"), max(repeat, 20))
-        for label, method, overrides in SUITE_METHODS:
+        for label, method, overrides in chosen:
             run = dataclasses.replace(
                 system, learning=dataclasses.replace(system.learning, **overrides)
             )
@@ -248,17 +272,17 @@ def suite_rows(repeat: int) -> list[dict]:
 
 def _print_table(rows: list[dict]) -> None:
     print(
-        f"{'system':<22} {'method':<9} {'iter':>7} {'conv':>5} {'learn ms':>9} {'data ms':>8} "
+        f"{'system':<22} {'method':<13} {'iter':>7} {'conv':>5} {'learn ms':>9} {'data ms':>8} "
         f"{'riccati ms':>10} {'ratio':>8} {'|dK|/|K*|':>10} {'|dL|/|L*|':>10}"
     )
     fmt = lambda v: "-" if v is None else f"{v:.2e}"  # noqa: E731
     for r in rows:
         if "iterations" not in r:
-            print(f"{r['system']:<22} {r['method']:<9} {r['note']}")
+            print(f"{r['system']:<22} {r['method']:<13} {r['note']}")
             continue
         data = "-" if r["data_s"] is None else f"{1e3 * r['data_s']:.0f}"
         print(
-            f"{r['system']:<22} {r['method']:<9} {r['iterations']:>7} {r['converged']!s:>5} "
+            f"{r['system']:<22} {r['method']:<13} {r['iterations']:>7} {r['converged']!s:>5} "
             f"{1e3 * r['wall_s']:>9.2f} {data:>8} {1e3 * r['riccati_s']:>10.3f} "
             f"{r['ratio_to_riccati']:>8.1f} {fmt(r['K_error']):>10} {fmt(r['L_error']):>10}"
         )
@@ -269,9 +293,17 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="the rows as one JSON list on stdout")
     ap.add_argument("--repeat", type=int, default=3, help="best of N runs per figure")
     ap.add_argument("--only", choices=("builtin", "suite"), default=None)
+    ap.add_argument(
+        "--methods",
+        nargs="+",
+        choices=[label for label, _, _ in SUITE_METHODS],
+        default=None,
+        help="the example systems' rows by these methods only",
+    )
     args = ap.parse_args()
     rows = [] if args.only == "suite" else builtin_rows(args.repeat)
-    rows += [] if args.only == "builtin" else suite_rows(args.repeat)
+    methods = None if args.methods is None else tuple(args.methods)
+    rows += [] if args.only == "builtin" else suite_rows(args.repeat, methods)
     if args.json:
         print(json.dumps(rows))
     else:

@@ -13,10 +13,11 @@ takes the step from the combination of past iterates whose linearised residual i
 which on a linear map is GMRES(memory) in disguise, and cuts the s steps per e-fold to about
 sqrt(s) or fewer.  The extrapolation knows nothing of the cone or of the Riccati flow's
 direction far from P*, so the loop accepts its iterate only while it is symmetric positive
-semidefinite, inside the current bound, and its residual |F| is no larger than the one it was
-extrapolated from; otherwise it takes the plain step and forgets the history
-(:class:`AndersonHistory.restart`).  Every accepted plain step is value iteration's own, so
-the safeguarded iteration needs no more than value iteration does: no stabilising gain.
+semidefinite, inside the current bound, and its estimated gain error (the relative stopping
+rule's measure) is no larger than the one of the iterate it was extrapolated from; otherwise
+it takes the plain step and forgets the history (:class:`AndersonHistory.restart`).  Every
+accepted plain step is value iteration's own, so the safeguarded iteration needs no more than
+value iteration does: no stabilising gain.
 """
 
 from __future__ import annotations

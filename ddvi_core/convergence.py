@@ -1,15 +1,11 @@
-"""Step length, stopping rule and budget report of value iteration, from the current iterate.
+"""Step length and budget report of value iteration, from the current iterate.
 
 Value iteration is forward Euler on the Riccati flow F(P) = A^T P + P A + Q - P B R^-1 B^T P.
 Linearised at P_k, the flow is the Lyapunov operator of the current closed loop
 A_k = A - B K_{k+1}, whose eigenvalues are mu = lambda_i + lambda_j for the eigenvalues lambda
 of A_k.  Euler with step eps is stable on a mode mu with Re mu < 0 while
-|1 + eps mu| < 1, that is eps < -2 Re mu / |mu|^2: :func:`euler_step_limit`.
-
-A decaying mode mu shrinks the error by about eps |Re mu| per step, so near the fixed point
-|P - P*| <= |F(P)| / sigma with sigma = min -Re mu = -2 max Re lambda, the slowest decay of the
-operator: :func:`relative_error` divides that by |P|, which makes the stopping rule free of the
-cost's units (P scales with Q and R) and of the time unit (F and sigma are both rates).
+|1 + eps mu| < 1, that is eps < -2 Re mu / |mu|^2: :func:`euler_step_limit`.  The relative
+stopping rule's estimate of the gain's error is :func:`ddvi_core.continuation.gain_error`.
 """
 
 from __future__ import annotations
@@ -23,8 +19,8 @@ __all__ = [
     "TRUST",
     "adaptive_step",
     "budget_report",
+    "euler_limit_of_modes",
     "euler_step_limit",
-    "relative_error",
 ]
 
 TRUST = 0.5
@@ -34,12 +30,17 @@ the size of Q) the linearisation says little, and the step grows P by at most ha
 
 def euler_step_limit(lam: NDArray) -> float:
     """The largest stable Euler step for the Lyapunov operator of a matrix with eigenvalues
-    ``lam`` (n,): min over mu = lam_i + lam_j of -2 Re mu / |mu|^2 for decaying modes, and
-    1 / |mu| for modes that do not decay (Euler's growth |1 + eps mu| stays below 2 on them,
-    while the flow itself moves P towards a stabilising gain).  inf when every mu is 0."""
-    mu = (lam[:, None] + lam[None, :]).ravel()
+    ``lam`` (n,): :func:`euler_limit_of_modes` of mu = lam_i + lam_j."""
+    return euler_limit_of_modes((lam[:, None] + lam[None, :]).ravel())
+
+
+def euler_limit_of_modes(mu: NDArray) -> float:
+    """The largest stable Euler step on the modes ``mu``: min of -2 Re mu / |mu|^2 for
+    decaying modes, and 1 / |mu| for modes that do not decay (Euler's growth |1 + eps mu|
+    stays below 2 on them, while the flow itself moves P towards a stabilising gain).  inf
+    when every mu is 0."""
     size = np.abs(mu)
-    nonzero = size > 1e-12 * max(float(np.max(size)), 1e-300)
+    nonzero = size > 1e-12 * max(float(np.max(size)) if size.size else 0.0, 1e-300)
     if not np.any(nonzero):
         return math.inf
     mu, size = mu[nonzero], size[nonzero]
@@ -57,15 +58,6 @@ def adaptive_step(lam: NDArray, fraction: float, P_norm: float, dP_norm: float) 
     return eps if math.isfinite(eps) else 1.0
 
 
-def relative_error(lam: NDArray, P_norm: float, dP_norm: float) -> float:
-    """The estimated |P - P*| / |P| from the residual |F(P)| = ``dP_norm`` and the closed-loop
-    eigenvalues ``lam`` (n,) of the current gain; inf while that gain does not stabilise."""
-    sigma = -2.0 * float(np.max(lam.real)) if lam.size else 0.0
-    if sigma <= 0 or P_norm <= 0:
-        return math.inf
-    return dP_norm / (sigma * P_norm)
-
-
 def budget_report(errors: NDArray, tol: float) -> str:
     """Why an iteration budget ran out, from the per-iteration error estimates ``errors``
     (k,): the last error against ``tol``, its trend over the last half of the budget, and, when
@@ -77,7 +69,7 @@ def budget_report(errors: NDArray, tol: float) -> str:
     last = float(finite[-1])
     half = finite[finite.size // 2 :]
     first = float(half[0])
-    text = f"estimated relative error {last:.3g} > tol {tol:g}"
+    text = f"estimated relative error of K {last:.3g} > tol {tol:g}"
     if half.size < 2 or not (first > 0 and last > 0):
         return text
     ratio = last / first

@@ -14,8 +14,9 @@ follows from the plant's rates and the cost, never from the mission:
   rate / 2 (no lower than two periods over the data) to twice the fastest;
 - ``exploration_amplitude`` = sqrt(|Q| / |R|): the input that costs as much as a unit state
   (for a linear plant with no input limit the amplitude scales the data and not the gain);
-- the adaptive step (half the Euler stability limit of the current iterate's closed loop),
-  geometric bounds, the scale-free stopping rule at 1e-6, and a budget of 10,000 iterations.
+- the implicit step (:mod:`ddvi_core.continuation`, starting at half the Euler stability
+  limit of the starting closed loop), geometric bounds, the scale-free stopping rule on the
+  gain's estimated relative error at 1e-6, and a budget of 10,000 iterations.
 
 K0 is never derived (zero unless given): an open-loop unstable plant needs a stabilising
 ``learning.K0``, and the data's simulation says so when they diverge.  A key given in the file
@@ -167,7 +168,7 @@ def derive_learning(
     )
     values.update(
         time_unit=w_hi,
-        step="adaptive",
+        step="implicit",
         step_size=0.5,
         bounds="geometric",
         stopping="relative",

@@ -448,13 +448,15 @@ def learn_from_data(
     xbar = x is all along-track offset, the regression is dominated by P_yy y^2, and any
     unmodelled acceleration enters it scaled by the offset.
 
-    ``rule`` is the stopping rule ("residual" or the scale-free "relative") and an
-    ``adaptive`` step takes a fraction of the Euler stability limit of the current closed loop
-    (:mod:`ddvi_core.convergence`); both read the closed loop's eigenvalues off the matrices
-    the data's map implies (:func:`ddvi_core.regression.implied_plant`).  ``method``: "vi"
-    (Algorithm 2), "pi" (policy iteration on the same data from the stabilising gain ``K0``
-    (m, n), SI units) or "hybrid" (value iteration until the gain stabilises, then policy
-    iteration): :mod:`ddvi_core.policy_learning`.  ``memory``: value iteration's Anderson
+    ``rule`` is the stopping rule ("residual" or the scale-free "relative", on the gain's
+    estimated relative error: :mod:`ddvi_core.continuation`); an ``adaptive`` step takes a
+    fraction of the Euler stability limit of the current closed loop, read off the matrices
+    the data's map implies (:func:`ddvi_core.regression.implied_plant`), and an ``implicit``
+    step grows from that towards Newton's on the derivative of the data's map
+    (:mod:`ddvi_core.continuation`).  ``method``: "vi" (Algorithm 2), "pi" (policy
+    iteration on the same data from the stabilising gain ``K0`` (m, n), SI units) or "hybrid"
+    (value iteration until the gain is near the fixed point, then policy iteration):
+    :mod:`ddvi_core.policy_learning`.  ``memory``: value iteration's Anderson
     acceleration over that many past steps (0: plain; :mod:`ddvi_core.anderson`).
     """
     n, m, q = data.n, data.m, data.q

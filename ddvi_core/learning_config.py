@@ -46,8 +46,10 @@ class LearningConfig:
     bounds / bound_base: 'linear' base (r+1) or 'geometric' base 2^r; state_scale: the states'
     units in the iteration; input_limit: actuator saturation; tol, max_iterations: the
     stopping rule; stopping: 'residual' (|F(P)| < tol max(1, |P|)) or 'relative' (the
-    scale-free estimate of |P - P*| / |P| below tol, :mod:`ddvi_core.convergence`); step
-    'adaptive': step_size (below 1) times the Euler stability limit of the current closed loop.
+    scale-free estimate of |K - K*| / |K| at most tol, :mod:`ddvi_core.continuation`); step
+    'adaptive': step_size (below 1) times the Euler stability limit of the current closed loop;
+    'implicit': linearly implicit steps from that fraction of the limit, growing towards
+    Newton's (:mod:`ddvi_core.continuation`).
     exploration_channels: 'common' (every input sums every frequency, each with its own phases)
     or 'interleaved' (input i takes frequencies i, i + m, ...).
     A system file's missing keys are derived from the system (:mod:`ddvi_core.defaults`).
@@ -201,10 +203,13 @@ class LearningConfig:
             math.isfinite(self.time_unit) and self.time_unit > 0
         ):
             raise bad("time_unit", "must be a positive rate in 1/s")
-        if self.step not in ("harmonic", "constant", "adaptive"):
-            raise bad("step", f"must be 'harmonic', 'constant' or 'adaptive', got {self.step!r}")
-        if self.step == "adaptive" and not self.step_size < 1:
-            raise bad("step_size", "an adaptive step's size is a fraction below 1")
+        if self.step not in ("harmonic", "constant", "adaptive", "implicit"):
+            raise bad(
+                "step",
+                f"must be 'harmonic', 'constant', 'adaptive' or 'implicit', got {self.step!r}",
+            )
+        if self.step in ("adaptive", "implicit") and not self.step_size < 1:
+            raise bad("step_size", f"an {self.step} step's size is a fraction below 1")
         if self.exploration_channels not in ("common", "interleaved"):
             raise bad(
                 "exploration_channels",

@@ -12,9 +12,15 @@ assembled from the maps), then improves it: K_{k+1} = K(P_k).  It converges quad
 from a stabilising K0, and the evaluation says whether a gain stabilises: its P is positive
 definite then (Q > 0, or (A, Q^1/2) observable), indefinite or undefined otherwise.
 
-The hybrid needs no stabilising K0: it starts with policy iteration when K0 stabilises;
-otherwise it runs value iteration (the adaptive step) and evaluates each iterate's gain, and
-switches to policy iteration at the first whose P is positive definite.
+The hybrid needs no stabilising K0: it starts with policy iteration when K0 stabilises the
+closed loop the data imply (its eigenvalues, and its evaluation positive definite); otherwise
+it runs value iteration until the gain's estimated relative error
+(:func:`ddvi_core.continuation.gain_error`) is at most HYBRID_SWITCH, where Newton's method
+converges, and then policy iteration.  A positive definite evaluation alone does not tell a
+stabilising gain on data: on a plant with a pole at zero (a motor's shaft angle) the data's
+map puts it a hair to the right (+1.7e-8 on the DC motor's), whose Lyapunov equation is near
+singular, and its solution came out positive definite, with |P| ~ 1e11 and a first policy
+gain 1e7 too large, which policy iteration then only halves per step.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from ddvi_core.continuation import basis_images
 from ddvi_core.regression import RiccatiMap, implied_plant
 from ddvi_core.value_iteration import (
     BoundSchedule,
@@ -43,21 +50,11 @@ __all__ = [
 
 LEARNING_METHODS = ("vi", "pi", "hybrid")
 
+HYBRID_SWITCH = 0.1
+"""The hybrid's value iteration hands over to policy iteration at this estimated relative
+error of the gain."""
+
 LoopResult = tuple[NDArray, NDArray, int, int, bool, float, NDArray, str]
-
-
-def basis_images(riccati_map: RiccatiMap) -> tuple[NDArray, NDArray]:
-    """(H(E_l) (t, n, n), K(E_l) (t, m, n)) for the basis E_l of symmetric matrices in vecs's
-    upper-triangle order (t = n(n+1)/2): the maps once, so an evaluation is one solve."""
-    n = riccati_map.n
-    Hs, Ks = [], []
-    for i, j in zip(*np.triu_indices(n), strict=True):
-        E = np.zeros((n, n))
-        E[i, j] = E[j, i] = 1.0
-        H, KE = riccati_map(E)
-        Hs.append(H)
-        Ks.append(KE)
-    return np.array(Hs), np.array(Ks)
 
 
 def policy_evaluation(
@@ -96,9 +93,11 @@ def policy_iteration_loop(
     tol: float,
     max_iterations: int,
     images: tuple[NDArray, NDArray] | None = None,
+    advice: str = "give a stabilising learning.K0 or use the hybrid method",
 ) -> LoopResult:
     """Kleinman's iteration on the data's maps from the gain K0_s (m, n), stopping when
-    |P_k - P_{k-1}| <= tol |P_k|.  Returns the tuple of
+    |P_k - P_{k-1}| <= tol |P_k|; ``advice`` ends the message when a gain does not
+    stabilise.  Returns the tuple of
     :func:`ddvi_core.value_iteration.value_iteration_loop`; history holds |P_k - P_{k-1}|."""
     images = basis_images(riccati_map) if images is None else images
     K, P_prev = K0_s, None
@@ -108,8 +107,7 @@ def policy_iteration_loop(
         if not is_positive_definite(P):
             why = (
                 "the gain does not stabilise the closed loop the data imply (its policy "
-                f"evaluation's P is not positive definite) at policy iteration {k}: give a "
-                "stabilising learning.K0 or use the hybrid method"
+                f"evaluation's P is not positive definite) at policy iteration {k}: {advice}"
             )
             return P_prev if P_prev is not None else Q_s, K, k, 0, False, math.inf, \
                 np.array(history), why  # fmt: skip
@@ -121,6 +119,15 @@ def policy_iteration_loop(
         P_prev = P
     why = f"|P_k - P_k-1| / |P_k| = {history[-1] / np.linalg.norm(P_prev):.3g} > tol {tol:g}"
     return P_prev, K, max_iterations, 0, False, history[-1], np.array(history), why
+
+
+def _stabilises(
+    images: tuple[NDArray, NDArray], Q_s: NDArray, R_s: NDArray, K: NDArray, closed_loop: ClosedLoop
+) -> bool:
+    """K stabilises the closed loop the data imply, and its evaluation is positive definite."""
+    return bool(np.max(closed_loop(K).real) < 0) and is_positive_definite(
+        policy_evaluation(images, Q_s, R_s, K)
+    )
 
 
 def _hybrid(
@@ -135,25 +142,22 @@ def _hybrid(
     max_iterations: int,
     closed_loop: ClosedLoop,
 ) -> LoopResult:
-    """Value iteration until its gain's policy evaluation is positive definite, then policy
-    iteration from that gain (from K0_s at once if it stabilises)."""
+    """Value iteration until the gain's estimated relative error is at most HYBRID_SWITCH,
+    then policy iteration from that gain (from K0_s at once if it stabilises)."""
     images = basis_images(riccati_map)
     K, vi_iterations, resets = K0_s, 0, 0
-    if not is_positive_definite(policy_evaluation(images, Q_s, R_s, K0_s)):
-        P = P0_s
-        for vi_iterations in range(1, max_iterations + 1):  # noqa: B007 (used after)
-            P, K, _, r, _, _, _, why = value_iteration_loop(
-                riccati_map, Q_s, R_s, P, steps, bounds, 0.0, 1, closed_loop=closed_loop,
-                rule="relative",
-            )  # fmt: skip
-            resets += r
-            if is_positive_definite(policy_evaluation(images, Q_s, R_s, K)):
-                break
-        else:
-            why = f"no value-iteration gain stabilised the closed loop in {max_iterations} steps"
-            return P, K, max_iterations, resets, False, math.inf, np.zeros(0), why
+    if not _stabilises(images, Q_s, R_s, K0_s, closed_loop):
+        P, K, vi_iterations, resets, near, _, _, why = value_iteration_loop(
+            riccati_map, Q_s, R_s, P0_s, steps, bounds, max(tol, HYBRID_SWITCH),
+            max_iterations, closed_loop=closed_loop, rule="relative",
+        )  # fmt: skip
+        if not near:
+            why = f"value iteration did not bring the gain near enough for policy iteration: {why}"
+            return P, K, vi_iterations, resets, False, math.inf, np.zeros(0), why
+        K = riccati_map(P)[1]
+    advice = "the data's map is not the Lyapunov map of a plant; use value iteration (ddvi)"
     out = policy_iteration_loop(
-        riccati_map, Q_s, R_s, K, tol, max(1, max_iterations - vi_iterations), images
+        riccati_map, Q_s, R_s, K, tol, max(1, max_iterations - vi_iterations), images, advice
     )
     return (*out[:2], out[2] + vi_iterations, resets, *out[4:])
 

@@ -24,7 +24,8 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from ddvi_core.anderson import DEFAULT_MEMORY, AndersonHistory
-from ddvi_core.convergence import adaptive_step, budget_report, relative_error
+from ddvi_core.continuation import basis_images, continuation_loop, gain_error, linearisation
+from ddvi_core.convergence import adaptive_step, budget_report
 
 __all__ = [
     "BoundSchedule",
@@ -90,7 +91,7 @@ class Scaling:
         }
 
 
-STEP_KINDS = ("harmonic", "constant", "adaptive")
+STEP_KINDS = ("harmonic", "constant", "adaptive", "implicit")
 STOPPING_RULES = ("residual", "relative")
 
 DEFAULT_TIME_UNIT_DIVISOR = 100.0
@@ -132,7 +133,9 @@ class StepSequence:
     stability limit of the slowest lightly damped closed-loop mode), or ``adaptive``: ``gain``
     (below 1) times the Euler stability limit of the current iterate's closed loop, no longer
     than :data:`ddvi_core.convergence.TRUST` |P| / |F(P)| (the loop computes it; see
-    :func:`ddvi_core.convergence.adaptive_step`)."""
+    :func:`ddvi_core.convergence.adaptive_step`), or ``implicit``: linearly implicit steps
+    that start at ``gain`` (below 1) times that limit and grow towards Newton's
+    (:mod:`ddvi_core.continuation`)."""
 
     kind: str = "harmonic"
     gain: float = 1.0
@@ -142,8 +145,8 @@ class StepSequence:
             raise ValueError(f"step kind must be one of {', '.join(STEP_KINDS)}, got {self.kind!r}")
         if not (self.gain > 0 and math.isfinite(self.gain)):
             raise ValueError(f"step gain must be positive and finite, got {self.gain}")
-        if self.kind == "adaptive" and not self.gain < 1:
-            raise ValueError(f"an adaptive step's gain is a fraction below 1, got {self.gain}")
+        if self.kind in ("adaptive", "implicit") and not self.gain < 1:
+            raise ValueError(f"an {self.kind} step's gain is a fraction below 1, got {self.gain}")
 
     def __call__(self, k: int) -> float:
         return self.gain / (k + 1) if self.kind == "harmonic" else self.gain
@@ -194,32 +197,18 @@ ClosedLoop = Callable[[NDArray], NDArray]
 """K_s (m, n) -> the eigenvalues (n,) of the closed loop A_s - B_s K_s (scaled units)."""
 
 
-def _step_and_error(
+def _step(
     steps: StepSequence,
-    rule: str,
     k: int,
     K: NDArray,
     P_norm: float,
     residual: float,
-    K_residual: float,
     closed_loop: ClosedLoop | None,
-    tol: float,
-) -> tuple[float, float, float]:
-    """(eps_k, the stopping rule's measure, its threshold): the residual against
-    tol max(1, |P|) for ``residual``; for ``relative``, the larger of the estimated
-    |P - P*| / |P| and |K - K*| / |K| (``K_residual`` = |R^-1 B^T F(P)|) against tol."""
-    lam = (
-        closed_loop(K)
-        if closed_loop is not None and (rule == "relative" or steps.kind == "adaptive")
-        else None
-    )
-    adaptive = steps.kind == "adaptive"
-    eps = adaptive_step(lam, steps.gain, P_norm, residual) if adaptive else steps(k)
-    if rule == "relative":
-        K_norm = float(np.sqrt(np.sum(K * K)))
-        K_error = relative_error(lam, K_norm, K_residual) if K_norm > 0 else math.inf
-        return eps, max(relative_error(lam, P_norm, residual), K_error), tol
-    return eps, residual, tol * max(1.0, P_norm)
+) -> float:
+    """eps_k: the sequence's, or the adaptive step from the current closed loop."""
+    if steps.kind == "adaptive":
+        return adaptive_step(closed_loop(K), steps.gain, P_norm, residual)
+    return steps(k)
 
 
 def _leaves(P: NDArray, radius: float, psd_tol: float) -> str:
@@ -233,11 +222,24 @@ def _leaves(P: NDArray, radius: float, psd_tol: float) -> str:
 def _stop_message(rule: str, error: float, tol: float, accelerated: int, rejected: int) -> str:
     """What was met at the stop, in the converged message."""
     met = (
-        f"estimated relative error of P and K {error:.3g} <= tol {tol:g}"
+        f"estimated |K - K*|/|K| {error:.3g} <= tol {tol:g}"
         if rule == "relative"
         else f"residual {error:.3g} < tol {tol:g} max(1, |P|)"
     )
     return f"{met}; {accelerated} accelerated steps, {rejected} rejected by the safeguard"
+
+
+def _gain_error_of(
+    riccati_map: RiccatiMap, R_s: NDArray, n: int
+) -> Callable[[NDArray, NDArray], float]:
+    """(K, F(P)) -> the estimated |K - K*| / |K| (:func:`ddvi_core.continuation.gain_error`)."""
+    images = basis_images(riccati_map, n)
+
+    def error(K: NDArray, F: NDArray) -> float:
+        M = linearisation(images, R_s, K)
+        return gain_error(images, M, np.linalg.eigvals(M), K, F)
+
+    return error
 
 
 @dataclass
@@ -276,10 +278,11 @@ def value_iteration_loop(
     P~_{k+1} = P_k + eps_k (H_k + Q - K_{k+1}^T R K_{k+1});  reset to P0 (r += 1) when P~ leaves
     B_r (|P~|_F > radius, or an eigenvalue below -psd_tol |P~|: a strict PSD test would reset on
     round-off).  Stopping ``rule``: ``residual`` stops when |P~_{k+1} - P_k| / eps_k <
-    tol max(1, |P_k|); ``relative`` (scale-free, :func:`ddvi_core.convergence.relative_error`)
-    when the estimated |P_k - P*| / |P_k| and |K_k - K*| / |K_k| are both below tol.
-    ``closed_loop`` (needed by the ``relative`` rule and the ``adaptive`` step) gives the
-    eigenvalues of the current closed loop.  Norms are Frobenius.
+    tol max(1, |P_k|); ``relative`` (scale-free) when the estimated |K_k - K*| / |K_k|
+    (the Newton correction's, :func:`ddvi_core.continuation.gain_error`) is at most tol.
+    ``closed_loop`` (needed by the ``adaptive`` step) gives the eigenvalues of the current
+    closed loop.  Norms are Frobenius.  The ``implicit`` step runs
+    :func:`ddvi_core.continuation.continuation_loop` instead (no Anderson acceleration).
 
     ``memory`` > 0 accelerates the ``relative`` rule's iteration by Anderson's method over
     that many past steps (:mod:`ddvi_core.anderson`) once the gain stabilises: an
@@ -297,8 +300,14 @@ def value_iteration_loop(
     Returns (P, K, iterations, resets, converged, residual, history, why): ``why`` says why
     it stopped unconverged, or what was met when converged; ``history`` holds eps_k |F(P_k)|.
     """
-    if (rule == "relative" or steps.kind == "adaptive") and closed_loop is None:
-        raise ValueError("the relative stopping rule and the adaptive step need closed_loop")
+    if steps.kind == "implicit":
+        return continuation_loop(
+            riccati_map, Q_s, R_s, P0_s, steps.gain, bounds, tol, max_iterations, rule,
+            psd_tol, max_psd_resets,
+        )  # fmt: skip
+    if steps.kind == "adaptive" and closed_loop is None:
+        raise ValueError("the adaptive step needs closed_loop")
+    gain_error_of = _gain_error_of(riccati_map, R_s, P0_s.shape[0]) if rule == "relative" else None
     P = P0_s.copy()
     r = psd_resets = 0  # PSD resets since the step last shrank
     psd_eps = math.inf
@@ -314,10 +323,12 @@ def value_iteration_loop(
         if not math.isfinite(residual) and acc.fallback is None:
             return P, K, k + 1, r, False, residual, history[:k], "the residual is not finite"
         P_norm = float(np.sqrt(np.sum(P * P)))
-        K_residual = float(np.linalg.norm(riccati_map(dP)[1])) if rule == "relative" else math.inf
-        eps, errors[k], threshold = _step_and_error(
-            steps, rule, k, K, P_norm, residual, K_residual, closed_loop, tol
-        )
+        eps = _step(steps, k, K, P_norm, residual, closed_loop)
+        # the stopping rule's measure: the estimated |K - K*| / |K|, or the residual
+        if gain_error_of is not None:
+            errors[k], threshold = gain_error_of(K, dP), tol
+        else:
+            errors[k], threshold = residual, tol * max(1.0, P_norm)
         if acc.fallback is not None and not errors[k] <= acc.error_from:
             # the safeguard: the extrapolated iterate raised the stopping rule's measure (the
             # residual, or the estimated error); take the plain step from where it came from
@@ -328,7 +339,7 @@ def value_iteration_loop(
             continue
         P_new = P + eps * dP
         history[k] = eps * residual
-        if errors[k] < threshold:
+        if errors[k] <= threshold if gain_error_of else errors[k] < threshold:
             done = _stop_message(rule, errors[k], tol, acc.accepted, acc.rejected)
             return P_new, K, k + 1, r, True, residual, history[: k + 1], done
         # accelerate only with the relative rule and once the gain stabilises (the estimate is
@@ -391,9 +402,10 @@ def value_iteration(
     :func:`balanced_scaling`, False for the problem's own units, or a :class:`Scaling`.
     P0 is given in scaled units (default 1e-3 I, small against P* as docs/design.md,
     "Expected figures", advises).  ``tol`` bounds the scaled Riccati residual relative to |P_k|
-    at the stop (``rule`` "residual"), or the estimated |P - P*| / |P| (``rule`` "relative",
-    scale-free: see :mod:`ddvi_core.convergence`).  ``memory``: Anderson acceleration over
-    that many past steps (0: plain value iteration; :mod:`ddvi_core.anderson`).
+    at the stop (``rule`` "residual"), or the estimated |K - K*| / |K| (``rule`` "relative",
+    scale-free: see :mod:`ddvi_core.continuation`).  ``memory``: Anderson acceleration of
+    the explicit steps over that many past steps (0: plain value iteration;
+    :mod:`ddvi_core.anderson`).
     """
     A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
     n, m = B.shape

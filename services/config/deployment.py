@@ -131,8 +131,8 @@ MISSION_LEARNING: dict[str, Any] = {
     "exploration_amplitude": 0.1,  # rad (MRP) of the multi-sine
     "K0": [[0.0, 0.0, 0.0, 0.0]],  # gain on x, y, xdot, ydot
     "seed": 1,
-    "step": "constant",
-    "step_size": 0.01,  # in units of the orbit rate
+    "step": "implicit",  # ddvi_core.continuation
+    "step_size": 0.5,  # the first step, a fraction of the Euler stability limit
     "bounds": "geometric",
 }
 """The mission's learning defaults: a deputy's learning table overrides them key by key; every

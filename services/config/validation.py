@@ -197,10 +197,18 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
         raise DeploymentError(f"{where}.trim_gain: must lie in (0, 1]")
     if lrn.K0 is None or len(lrn.K0) != 1 or len(lrn.K0[0]) != 4:
         raise DeploymentError(f"{where}.K0: expected 4 values (gain on x, y, xdot, ydot)")
-    if lrn.step not in ("harmonic", "constant") or lrn.bounds not in ("linear", "geometric"):
+    if lrn.step not in ("harmonic", "constant", "implicit") or lrn.bounds not in (
+        "linear",
+        "geometric",
+    ):
         raise DeploymentError(
-            f"{where}.step/bounds: expected step 'harmonic' or "
-            "'constant' and bounds 'linear' or 'geometric'"
+            f"{where}.step/bounds: expected step 'harmonic', 'constant' or 'implicit' and "
+            "bounds 'linear' or 'geometric'"
+        )
+    if lrn.step == "implicit" and not lrn.step_size < 1:
+        raise DeploymentError(
+            f"{where}.step_size: an implicit step's size is a fraction below 1 (of the Euler "
+            f"stability limit), got {lrn.step_size}"
         )
 
 

@@ -7,21 +7,29 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 
 from benchmarks.floor import run_floor
-from benchmarks.learning import ddvi_after, iterations_to
+from benchmarks.learning import EXPLICIT_STEP, ddvi_after, iterations_to
 from benchmarks.mission import _PeakMemory
-from ddvi_core.systems import BUILTIN_SYSTEMS
+from ddvi_core.systems import BUILTIN_SYSTEMS, System
 from services.config import deployment_from_table, read_table
 from services.flight.inprocess import run_in_process
 from services.model import duration
 
 
+def _explicit_rendezvous() -> System:
+    """The mission's learner by value iteration's explicit constant step: tens of thousands of
+    iterations, so a search over its budget has room to bisect."""
+    system = BUILTIN_SYSTEMS["rendezvous"]()
+    return replace(system, learning=replace(system.learning, **EXPLICIT_STEP))
+
+
 @pytest.mark.integration  # runs the mission's learner about a dozen times
 def test_iterations_to_finds_where_the_gain_error_crosses_the_tolerance() -> None:
-    system = BUILTIN_SYSTEMS["rendezvous"]()
+    system = _explicit_rendezvous()
     n, wall, err = iterations_to(system, 1e-3, upper=30_000, resolution=2_000)
     assert err < 1e-3
     assert err == pytest.approx(ddvi_after(system, n)[1], rel=1e-9)
@@ -31,7 +39,7 @@ def test_iterations_to_finds_where_the_gain_error_crosses_the_tolerance() -> Non
 
 
 def test_iterations_to_refuses_a_bound_that_does_not_reach_the_tolerance() -> None:
-    system = BUILTIN_SYSTEMS["rendezvous"]()
+    system = _explicit_rendezvous()
     with pytest.raises(ValueError, match=r"after 100 iterations: not below 0\.001"):
         iterations_to(system, 1e-3, upper=100, resolution=10)
 

@@ -143,7 +143,7 @@ def test_system_file_and_deployment_read_the_same_learning_config() -> None:
     dep = deployment_from_table({"deputy": [{"name": "a", "learning": {"relearn": True}}]})
     learning = dep.deputy[0].learning
     assert isinstance(learning, LearningConfig) and learning.relearn
-    assert (learning.step, learning.step_size, learning.seed) == ("constant", 0.01, 1)
+    assert (learning.step, learning.step_size, learning.seed) == ("implicit", 0.5, 1)
     assert learning.K0 == ((0.0, 0.0, 0.0, 0.0),)
     with pytest.raises(SystemFileError, match=r"^learning\.relearn: unknown key"):
         system_from_table({**base, "R": [[1.0]], "learning": {"relearn": True}})

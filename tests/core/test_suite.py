@@ -66,20 +66,17 @@ def test_data_driven_methods_reach_riccati_fast_systems(name: str, method: str) 
     _assert_accurate(name, method, 10_000 if method == "ddvi" else 50)
 
 
-# the hybrid's policy iteration leaves the cone on the stiff motor's data (its second
-# evaluation is not positive definite); value iteration on the same data converges
-HYBRID_FAILS = ("dc-motor-position",)
+# the stiff plants' value iteration takes its resets before the hybrid hands over to policy
+# iteration (the DC motor's: 7, from P0 to a bound above |P*|)
+HYBRID_BUDGET = {"dc-motor-position": 300, "thermal-chain": 300}
 
 
 @pytest.mark.integration
 @pytest.mark.parametrize("name", sorted(set(FILES) - set(FAST)))
 @pytest.mark.parametrize("method", ["ddvi", "hybrid"])
 def test_data_driven_methods_reach_riccati(name: str, method: str) -> None:
-    if method == "hybrid" and name in HYBRID_FAILS:
-        sol = solve(_system(name), method)
-        assert not sol.converged and "not positive definite" in sol.details["message"]
-        return
-    _assert_accurate(name, method, 10_000 if method == "ddvi" else 50)
+    budget = 10_000 if method == "ddvi" else HYBRID_BUDGET.get(name, 50)
+    _assert_accurate(name, method, budget)
 
 
 @pytest.mark.integration
