@@ -254,11 +254,10 @@ class Launcher:
     def _fly(self, session: Any, started: float) -> int:
         """Start the monitor, the flight services, then the environment, and supervise."""
         first = [s for s in self.dep.services if s != "environment"]
-        # the monitor first, so that it records everything from the first message on
-        self.start("monitor")
-        if (status := self._await(session, ["monitor"])) is not None:
-            return status
-        for name in first[1:]:
+        # the monitor first, and the others at once behind it: a service declares itself
+        # alive, and publishes, only once it sees the monitor (services.flight.runtime), so
+        # that the recording has everything from the first message on
+        for name in first:
             self.start(name)
         if (status := self._await(session, first)) is not None:
             return status

@@ -67,15 +67,26 @@ def test_one_process_timing_splits_its_work_among_the_services() -> None:
 
 
 @pytest.mark.integration
-@pytest.mark.parametrize("layer", ["plain", "bus"])
-def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
+@pytest.mark.parametrize(
+    ("layer", "topology"), [("plain", "peer"), ("bus", "peer"), ("plain", "routed")]
+)
+def test_floor_carries_every_message_and_waits_on_the_chain(layer: str, topology: str) -> None:
     """Three deputies, 40 steps: the monitor has every sample, and each step waits for the
     environment's 3 ms of work and then a navigation's 3 ms (lock-step: in series)."""
     spins = {"environment": 0.003, "nav-b": 0.003}
-    floor = run_floor(["a", "b", "c"], 40, samples=3, spins=spins, layer=layer)
+    floor = run_floor(["a", "b", "c"], 40, samples=3, spins=spins, layer=layer, topology=topology)
     assert floor["steps"] == 40
     assert floor["received"] == 40 * (3 + 3 + 2 * 3) + 1
     assert floor["loop_s"] >= 40 * 0.006
+
+
+@pytest.mark.integration
+def test_routed_floor_records_every_message_through_the_access_controlled_router() -> None:
+    """On the mission's topology every message of a step is recorded, one MCAP message each:
+    a step's 3 samples of 2 truths, the exostate and a navigation, its clock and command;
+    every put passed the router's access control (a refused one would be missing)."""
+    floor = run_floor(["a"], 20, samples=3, layer="bus", topology="routed")
+    assert floor["recorded"] == 20 * (3 * (2 + 1 + 1) + 1 + 1)
 
 
 @pytest.mark.integration
@@ -91,6 +102,8 @@ def test_floor_refuses_an_empty_mission_and_an_unknown_layer() -> None:
         run_floor([], 10)
     with pytest.raises(ValueError, match="layer 'zmq' is not one of"):
         run_floor(["a"], 10, layer="zmq")
+    with pytest.raises(ValueError, match="topology 'mesh' is not one of"):
+        run_floor(["a"], 10, topology="mesh")
 
 
 def test_ddvi_bench_without_the_benchmarks_says_why_in_one_line(monkeypatch, capsys) -> None:
