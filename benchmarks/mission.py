@@ -328,7 +328,7 @@ def _swarm_rows(
     dist, single = results[n, controller]
     one, _ = results[1, "lqr"]
     four, _ = results[4, "lqr"]  # every sweep has it
-    name = f"{n:2d} {controller} deputies"
+    name = f"{n:2d} {controller} deput{'y' if n == 1 else 'ies'}"
     per_orbit, one_orbit = dist["loop_s"] / orbits, one["loop_s"] / orbits
     single_orbit = single["loop_s"] / orbits
     rate, one_rate = _message_rate(dist), _message_rate(one)
