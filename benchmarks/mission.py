@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
+import resource
 import subprocess
 import sys
 import tempfile
@@ -81,7 +82,7 @@ class _PeakMemory:
 
 def run_distributed(path: Path) -> dict[str, Any]:
     """``ddvi run path --quiet`` as a new user runs it; wall time, peak PSS, summary."""
-    t0, launched_ns = time.perf_counter(), time.time_ns()
+    t0, launched_ns, cpu0 = time.perf_counter(), time.time_ns(), _children_cpu()
     proc = subprocess.Popen(
         [sys.executable, "-m", "services.cli", "run", str(path), "--quiet"],
         stdout=subprocess.PIPE,
@@ -90,7 +91,7 @@ def run_distributed(path: Path) -> dict[str, Any]:
     )
     memory = _PeakMemory(proc.pid)
     out, err = proc.communicate()
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     peak = memory.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"ddvi run {path} failed ({proc.returncode}): {err[-2000:]}")
@@ -102,9 +103,18 @@ def run_distributed(path: Path) -> dict[str, Any]:
         "mission_wall_s": summary["wall_s"],
         "loop_s": (last - first) / 1e9,
         "startup_s": (first - launched_ns) / 1e9,
+        "cpu_s": cpu,
         "pss_bytes": peak,
         "summary": summary,
     }
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user and system) of this process's children waited for so far, and of
+    theirs: a run's processes, which its launcher waits for.  Unlike wall time, it does not
+    grow with what else the machine runs."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _clock_span(path: Path) -> tuple[int, int]:
@@ -141,7 +151,7 @@ def _row(
 def run_single(path: Path) -> dict[str, Any]:
     """The same deployment stepped in one fresh process (imports included), no bus; with the
     loop's wall time and each service's share of it (``run_in_process``'s timing)."""
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _children_cpu()
     proc = subprocess.Popen(
         [sys.executable, "-m", "benchmarks.mission", str(path)],
         stdout=subprocess.PIPE,
@@ -150,11 +160,12 @@ def run_single(path: Path) -> dict[str, Any]:
     )
     memory = _PeakMemory(proc.pid)
     out, err = proc.communicate()
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     peak = memory.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"in-process run of {path} failed: {err[-2000:]}")
-    return {"wall_s": wall, "pss_bytes": peak, **json.loads(out.strip().splitlines()[-1])}
+    return {"wall_s": wall, "cpu_s": cpu, "pss_bytes": peak,
+            **json.loads(out.strip().splitlines()[-1])}  # fmt: skip
 
 
 def run_single_loop(path: str) -> dict[str, Any]:
@@ -233,6 +244,14 @@ def _whole_run_rows(
         ),
         _row(
             "simulated s per wall s", "x", sim / dist["wall_s"], sim / single["wall_s"], base, ratio
+        ),
+        _row(
+            "CPU of all processes, start-up included (not inflated by a loaded machine)",
+            "s",
+            dist["cpu_s"],
+            single["cpu_s"],
+            base,
+            dist["cpu_s"] / single["cpu_s"],
         ),
         _row(
             "peak memory (PSS), all processes",
@@ -349,6 +368,8 @@ def _swarm_rows(
         row("peak memory (PSS) per deputy", "MB", pss / n, single["pss_bytes"] / 1e6 / n,
             "the same swarm, one process"),
         row("messages recorded a second", "1/s", rate, one_rate, "1 lqr deputy"),
+        row("CPU of the whole run per deputy-orbit", "s", dist["cpu_s"] / orbits / n,
+            four["cpu_s"] / orbits / 4, "4 lqr deputies"),
     ]  # fmt: skip
 
 
