@@ -45,6 +45,7 @@ import argparse
 import json
 import os
 import queue
+import resource
 import subprocess
 import sys
 import tempfile
@@ -344,17 +345,30 @@ def run_floor(
     processes connected as ``topology`` says (``peer`` or ``routed``);
     ``spins``: wall seconds of work a step by process name (``environment``, ``nav-<d>``,
     ``ctrl-<d>``; missing: none).  Returns ``loop_s`` (the environment's first put to the last
-    step's last command), ``steps``, and the monitor's ``received`` samples, all of them
-    (RuntimeError otherwise)."""
+    step's last command), ``steps``, the monitor's ``received`` samples, all of them
+    (RuntimeError otherwise), and ``cpu_s``: the CPU seconds of the floor's processes and
+    its hub, start-up included (not inflated by a loaded machine, as its wall time is)."""
     if not deputies or steps < 1 or samples < 1:
         raise ValueError("run_floor needs at least one deputy, one step and one sample a step")
     if layer not in LAYERS:
         raise ValueError(f"run_floor: layer {layer!r} is not one of {LAYERS}")
     if topology not in TOPOLOGIES:
         raise ValueError(f"run_floor: topology {topology!r} is not one of {TOPOLOGIES}")
+    cpu0 = _cpu()
     with tempfile.TemporaryDirectory(prefix="ddvi-floor-") as folder:
-        return _run_floor(deputies, steps, samples, dt, spins or {}, layer,
-                          Path(folder) if topology == "routed" else None)  # fmt: skip
+        floor = _run_floor(deputies, steps, samples, dt, spins or {}, layer,
+                           Path(folder) if topology == "routed" else None)  # fmt: skip
+    return {**floor, "cpu_s": _cpu() - cpu0}
+
+
+def _cpu() -> float:
+    """CPU seconds of this process (the hub or router's threads) and of its children waited
+    for (the floor's processes)."""
+    return sum(
+        u.ru_utime + u.ru_stime
+        for u in (resource.getrusage(resource.RUSAGE_SELF),
+                  resource.getrusage(resource.RUSAGE_CHILDREN))
+    )  # fmt: skip
 
 
 def _run_floor(

@@ -200,11 +200,12 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
 
 def mission_floor(
     dep: Deployment, timing: dict[str, float], steps: int, layer: str, topology: str = "peer"
-) -> float:
+) -> dict[str, Any]:
     """The lock-step floor's loop (s) for ``dep`` on ``layer`` and ``topology``
     (``benchmarks.floor``): the same processes, messages and work (each service's share of
     the one-process run, ``timing``, over ``steps``) as the distributed run, with services
-    and a monitor that cost nothing beyond that work (and, routed, the recording)."""
+    and a monitor that cost nothing beyond that work (and, routed, the recording); with the
+    CPU its processes spent (``cpu_s``)."""
     return run_floor(
         [d.name for d in dep.deputy],
         steps,
@@ -213,7 +214,7 @@ def mission_floor(
         spins={name: spent / steps for name, spent in timing.items()},
         layer=layer,
         topology=topology,
-    )["loop_s"]
+    )
 
 
 def _whole_run_rows(
@@ -266,7 +267,7 @@ def _whole_run_rows(
 
 
 def _loop_rows(
-    loop: float, single_loop: float, floors: dict[tuple[str, str], float],
+    loop: float, single_loop: float, floors: dict[tuple[str, str], dict[str, Any]],
     timing: dict[str, float], steps: int,
 ) -> list[dict[str, Any]]:  # fmt: skip
     """The lock-step loop alone (s), distributed (``loop``) against one process
@@ -276,7 +277,9 @@ def _loop_rows(
     base = "one process, no bus: loop"
     shares = ", ".join(f"{name} {1e3 * spent / steps:.2f}" for name, spent in timing.items())
     work = sum(timing.values())
-    plain, routed, bus = floors["plain", "peer"], floors["plain", "routed"], floors["bus", "peer"]
+    plain, routed, bus = (floors[k]["loop_s"] for k in (("plain", "peer"), ("plain", "routed"),
+                                                        ("bus", "peer")))  # fmt: skip
+    cpu = {k: f["cpu_s"] for k, f in floors.items()}
     return [
         _row(f"loop only: first to last clock ({steps:,} lock-step steps)", "s", loop,
              single_loop, base, loop / single_loop),
@@ -287,6 +290,9 @@ def _loop_rows(
         _row("floor, mission's topology: authenticated clients of one router, access "
              "control, every message recorded to MCAP", "s", routed, plain,
              "floor: plain zenoh peers", routed / plain, "<= 1.3x"),
+        _row("floor on the mission's topology, CPU of all its processes and its router", "s",
+             cpu["plain", "routed"], cpu["plain", "peer"], "floor: plain zenoh peers",
+             cpu["plain", "routed"] / cpu["plain", "peer"]),
         _row("floor on the project's Bus (peers)", "s", bus, plain, "floor: plain zenoh peers",
              bus / plain),
         _row("loop only, against the floor on the mission's topology", "s", loop, routed,
