@@ -1,13 +1,15 @@
 """Mission benchmarks: the distributed run against the single-process run, and swarm scaling.
 
 Throughput: the default deployment through ``ddvi run`` (every service its own process on
-Zenoh, start-up and report included) against ``services.flight.inprocess.run_in_process`` (the same
-truth, navigation and controller code stepped in one process, no bus).  Then the loops alone
-(the first to the last clock message the monitor recorded; the one-process loop) and the
-lock-step floor
-(``benchmarks.floor``): the same processes and messages, each process spending its share of
-the one-process run's work, on plain zenoh and on the project's Bus, which splits the
-distributed loop's cost into the architecture's, the bus layer's and the services' own.
+Zenoh, start-up and report included) against ``services.flight.inprocess.run_in_process`` (the
+same truth, navigation and controller code stepped in one process, no bus), in wall time and
+in the CPU of all processes (which a loaded machine does not inflate); the start-up (launch to
+the first clock).  Then the loops alone (the first to the last clock message the monitor
+recorded; the one-process loop) and the lock-step floors (``benchmarks.floor``): the same
+processes and messages, each process spending its share of the one-process run's work, on
+plain zenoh peers, on the mission's topology (authenticated clients of one router with the
+run's access control, every message recorded to MCAP) and on the project's Bus, which split
+the distributed loop's cost into the topology's, the bus layer's and the services' own.
 
 Swarm scaling: 1, 4, 16 and 32 LQR deputies and 8 learning ones holding along-track slots
 1 km apart, each with its own navigation and controller process; the loop (first to last
