@@ -248,7 +248,7 @@ def run_service(
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
             # the monitor subscribed before its token: seeing the token, this session knows
-            # the subscription (the launcher starts the monitor first: this is quick)
+            # the subscription (the launcher starts the monitor with the others: a short wait)
             wait = max(MONITOR_WAIT, dep.run.startup_timeout)
             if args.name != "monitor" and not _see_monitor(session, args.run, stop, wait):
                 log.warning("the monitor is not seen after %g s: what this service publishes "
