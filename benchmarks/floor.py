@@ -12,7 +12,8 @@ flight-software step:
     nav-<d>       once it has the step's truth/chief and truth/<d>: spins, puts the step's
                   nav/<d>/state
     ctrl-<d>      once it has the step's nav/<d>/state and exo/state: spins, puts cmd/<d>/att
-    monitor       counts every sample (plain zenoh, whatever the layer)
+    monitor       counts every sample (plain zenoh, whatever the layer); on the routed
+                  topology records every message to MCAP too, as the ground monitor does
 
 Two layers carry the flight processes' messages:
 
@@ -20,14 +21,22 @@ Two layers carry the flight processes' messages:
 - ``bus``: the project's ``services.bus.endpoint.Bus``: schema encode and validating decode,
   the link model, sequence guards, one handler call a message.
 
-The processes are started and configured as the services are: peer sessions meshed through
-the driver's hub, one zenoh receive worker (``services.bus.endpoint.SERVICE_ZENOH_RUNTIME``), a
-subscriber callback handing what arrives to the main thread over a ``queue.SimpleQueue``,
-senders waiting for the monitor before they put.  What the distributed mission's loop costs
-above the ``bus`` floor is the services' own beyond the one-process run's work (the
-environment's attitudes, stats and logs, bookkeeping) and the monitor's recording.
+Two topologies connect them:
+
+- ``peer``: peer sessions meshed through the driver's hub, no authentication;
+- ``routed``: the mission's (``benchmarks.floor_topology``): every process an authenticated
+  client of the driver's router, which enforces the run's access control, and a monitor that
+  records every message to MCAP.
+
+The processes are otherwise started and configured as the services are: one zenoh receive
+worker (``services.bus.endpoint.SERVICE_ZENOH_RUNTIME``), a subscriber callback handing what
+arrives to the main thread over a ``queue.SimpleQueue``, senders waiting for the monitor
+before they put.  What the distributed mission's loop costs above the routed floor is the
+services' own beyond the one-process run's work (the bus layer, the environment's attitudes,
+stats and logs, bookkeeping, the monitor's report data).
 
     python -m benchmarks.floor --layer plain --steps 3620   # the floor, no work
+    python -m benchmarks.floor --topology routed            # on the mission's topology
 """
 
 from __future__ import annotations
@@ -36,16 +45,20 @@ import argparse
 import json
 import os
 import queue
+import resource
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import msgpack
 import numpy as np
 import zenoh
 
+from benchmarks.floor_topology import TOPOLOGIES, FloorRecorder, client_settings, router_settings
 from services.bus import SERVICE_ZENOH_RUNTIME, Bus, BusSettings, open_session, wait_for_alive
 from services.ground.launcher import free_port
 from services.interface import SCHEMAS
@@ -55,12 +68,13 @@ from services.interface.topics import (
     alive_topic,
     command_topic,
     nav_state_topic,
+    stats_topic,
     truth_topic,
 )
 
 RUN = "floor"
 LAYERS = ("plain", "bus")
-STOP = "floor/stop"  # the environment's last put: every process ends on it
+STOP = stats_topic("environment")  # the environment's last put: every process ends on it
 START_TIMEOUT = 60.0  # s for every process to be up (2 + 2N interpreters start at once)
 STEP_TIMEOUT = 30.0  # s a process waits for a step's message before giving up
 
@@ -240,9 +254,17 @@ def _relay(
         stop.undeclare()
 
 
-def _monitor(session: zenoh.Session, expected: int) -> dict[str, Any]:
+def _monitor(
+    session: zenoh.Session, expected: int, recorder: FloorRecorder | None = None
+) -> dict[str, Any]:
+    """Count every sample (and with a ``recorder``, record every message) until the stop."""
     inbox: queue.SimpleQueue[str] = queue.SimpleQueue()
-    sub = session.declare_subscriber(_key("**"), lambda s: inbox.put(str(s.key_expr)))
+    if recorder is None:
+        sub = session.declare_subscriber(_key("**"), lambda s: inbox.put(str(s.key_expr)))
+        take = inbox.get
+    else:
+        sub = session.declare_subscriber(_key("**"), recorder.on_sample)
+        take = recorder.take
     received = 0
     try:
         token = session.liveliness().declare_token(_key(alive_topic("monitor")))
@@ -252,7 +274,7 @@ def _monitor(session: zenoh.Session, expected: int) -> dict[str, Any]:
         wait = 3 * START_TIMEOUT  # the others' start-up, then a step at most
         while deadline is None or time.monotonic() < deadline:
             try:
-                key = inbox.get(timeout=wait if deadline is None else 0.05)
+                key = take(timeout=wait if deadline is None else 0.05)
             except queue.Empty:
                 if deadline is None:
                     raise RuntimeError(f"floor: the monitor had nothing for {wait} s") from None
@@ -264,7 +286,7 @@ def _monitor(session: zenoh.Session, expected: int) -> dict[str, Any]:
             if deadline is not None and received >= expected:
                 deadline = min(deadline, time.monotonic() + 0.1)
         token.undeclare()
-        return {"received": received}
+        return {"received": received, **(recorder.close() if recorder is not None else {})}
     finally:
         sub.undeclare()
 
@@ -276,10 +298,16 @@ def _expected(deputies: list[str], steps: int) -> int:
 
 def _role(args: argparse.Namespace) -> dict[str, Any]:
     deputies, steps, grid = args.deputies, args.steps, _Step(args.samples, args.dt)
-    settings = BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=[args.hub])
+    if args.folder is None:
+        settings = BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=[args.hub])
+    else:
+        settings = client_settings(Path(args.folder), args.role, args.hub)
     with open_session(settings) as session:
         if args.role == "monitor":
-            return _monitor(session, _expected(deputies, steps))
+            recorder = None
+            if args.folder is not None:
+                recorder = FloorRecorder(Path(args.folder), args.layer, _key(""))
+            return _monitor(session, _expected(deputies, steps), recorder)
         if args.role != "environment" and not wait_for_alive(
             session, RUN, ["monitor"], START_TIMEOUT
         ):
@@ -310,25 +338,56 @@ def _role(args: argparse.Namespace) -> dict[str, Any]:
 
 def run_floor(
     deputies: list[str], steps: int, samples: int = 6, dt: float = 10.0,
-    spins: dict[str, float] | None = None, layer: str = "plain",
+    spins: dict[str, float] | None = None, layer: str = "plain", topology: str = "peer",
 ) -> dict[str, Any]:  # fmt: skip
     """The floor for ``deputies`` over ``steps`` flight-software steps of ``samples`` samples
-    ``dt`` s apart, the flight processes' messages on ``layer`` (``plain`` or ``bus``);
+    ``dt`` s apart, the flight processes' messages on ``layer`` (``plain`` or ``bus``), the
+    processes connected as ``topology`` says (``peer`` or ``routed``);
     ``spins``: wall seconds of work a step by process name (``environment``, ``nav-<d>``,
     ``ctrl-<d>``; missing: none).  Returns ``loop_s`` (the environment's first put to the last
-    step's last command), ``steps``, and the monitor's ``received`` samples, all of them
-    (RuntimeError otherwise)."""
+    step's last command), ``steps``, the monitor's ``received`` samples, all of them
+    (RuntimeError otherwise), and ``cpu_s``: the CPU seconds of the floor's processes and
+    its hub, start-up included (not inflated by a loaded machine, as its wall time is)."""
     if not deputies or steps < 1 or samples < 1:
         raise ValueError("run_floor needs at least one deputy, one step and one sample a step")
     if layer not in LAYERS:
         raise ValueError(f"run_floor: layer {layer!r} is not one of {LAYERS}")
-    spins = spins or {}
+    if topology not in TOPOLOGIES:
+        raise ValueError(f"run_floor: topology {topology!r} is not one of {TOPOLOGIES}")
+    cpu0 = _cpu()
+    with tempfile.TemporaryDirectory(prefix="ddvi-floor-") as folder:
+        floor = _run_floor(deputies, steps, samples, dt, spins or {}, layer,
+                           Path(folder) if topology == "routed" else None)  # fmt: skip
+    return {**floor, "cpu_s": _cpu() - cpu0}
+
+
+def _cpu() -> float:
+    """CPU seconds of this process (the hub or router's threads) and of its children waited
+    for (the floor's processes)."""
+    return sum(
+        u.ru_utime + u.ru_stime
+        for u in (resource.getrusage(resource.RUSAGE_SELF),
+                  resource.getrusage(resource.RUSAGE_CHILDREN))
+    )  # fmt: skip
+
+
+def _run_floor(
+    deputies: list[str], steps: int, samples: int, dt: float, spins: dict[str, float],
+    layer: str, folder: Path | None,
+) -> dict[str, Any]:  # fmt: skip
+    """``run_floor``; ``folder``: the routed topology's credentials and recording (None:
+    peers)."""
     hub = f"tcp/127.0.0.1:{free_port()}"
     env = {"ZENOH_RUNTIME": SERVICE_ZENOH_RUNTIME, **os.environ, "OPENBLAS_NUM_THREADS": "1"}
     names = ["monitor", *(f"{p}-{d}" for d in deputies for p in ("nav", "ctrl")), "environment"]
     common = ["--hub", hub, "--layer", layer, "--deputies", *deputies, "--steps", str(steps),
               "--samples", str(samples), "--dt", str(dt)]  # fmt: skip
-    with open_session(BusSettings(mode="peer", listen=[hub], connect=[])):
+    if folder is None:
+        hub_settings = BusSettings(mode="peer", listen=[hub], connect=[])
+    else:
+        hub_settings = router_settings(folder, RUN, names, hub)
+        common += ["--folder", str(folder)]
+    with open_session(hub_settings):
         procs = {
             name: subprocess.Popen(
                 [
@@ -368,7 +427,8 @@ def run_floor(
         raise RuntimeError(f"floor: the monitor received {received} samples, not {expected}")
     if unfinished := [n for n, r in results.items() if r.get("pending")]:
         raise RuntimeError(f"floor: {unfinished} ended with steps half received")
-    return {**results["environment"], "received": received}
+    recorded = {k: v for k, v in results["monitor"].items() if k == "recorded"}
+    return {**results["environment"], "received": received, **recorded}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -379,6 +439,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("role", nargs="?", help="(internal) the process to be; none: run the floor")
     ap.add_argument("--layer", choices=LAYERS, default="plain")
+    ap.add_argument("--topology", choices=TOPOLOGIES, default="peer")
+    ap.add_argument("--folder", help="(internal) the routed topology's credentials, recording")
     ap.add_argument("--hub", help="(internal) the driver's endpoint")
     ap.add_argument("--deputies", nargs="+", default=["lqr", "ddvi"])
     ap.add_argument("--steps", type=int, default=3620)
@@ -387,7 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--spin", type=float, default=0.0, help="(internal) s of work a step")
     args = ap.parse_args(argv)
     if args.role is None:
-        floor = run_floor(args.deputies, args.steps, args.samples, args.dt, layer=args.layer)
+        floor = run_floor(args.deputies, args.steps, args.samples, args.dt, layer=args.layer,
+                          topology=args.topology)  # fmt: skip
         print(json.dumps(floor))
     else:
         print(json.dumps(_role(args)), flush=True)

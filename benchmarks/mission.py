@@ -1,18 +1,22 @@
 """Mission benchmarks: the distributed run against the single-process run, and swarm scaling.
 
 Throughput: the default deployment through ``ddvi run`` (every service its own process on
-Zenoh, start-up and report included) against ``services.flight.inprocess.run_in_process`` (the same
-truth, navigation and controller code stepped in one process, no bus).  Then the loops alone
-(the first to the last clock message the monitor recorded; the one-process loop) and the
-lock-step floor
-(``benchmarks.floor``): the same processes and messages, each process spending its share of
-the one-process run's work, on plain zenoh and on the project's Bus, which splits the
-distributed loop's cost into the architecture's, the bus layer's and the services' own.
+Zenoh, start-up and report included) against ``services.flight.inprocess.run_in_process`` (the
+same truth, navigation and controller code stepped in one process, no bus), in wall time and
+in the CPU of all processes (which a loaded machine does not inflate); the start-up (launch to
+the first clock).  Then the loops alone (the first to the last clock message the monitor
+recorded; the one-process loop) and the lock-step floors (``benchmarks.floor``): the same
+processes and messages, each process spending its share of the one-process run's work, on
+plain zenoh peers, on the mission's topology (authenticated clients of one router with the
+run's access control, every message recorded to MCAP) and on the project's Bus, which split
+the distributed loop's cost into the topology's, the bus layer's and the services' own.
 
-Swarm scaling: 1, 2, 4, 8, 16 LQR deputies holding along-track slots 1 km apart, each with its
-own navigation and controller process; wall time per simulated orbit (the monitor's first to
-last message) and the peak memory of every process of the run together (sampled by psutil
-every second, sooner at first).  The baseline is the one-deputy run of the same sweep.
+Swarm scaling: 1, 4, 16 and 32 LQR deputies and 8 learning ones holding along-track slots
+1 km apart, each with its own navigation and controller process; the loop (first to last
+clock) per simulated orbit and per deputy-orbit, the peak memory of every process of the run
+together (sampled by psutil every second, sooner at first) and the messages recorded a
+second.  The baselines are the one-deputy run of the same sweep (the four-deputy run for the
+loop per deputy-orbit) and the same swarm stepped in one process.
 
 Memory is the proportional set size (PSS) summed over the processes: each page counted once,
 a shared one split among the processes that map it.  A sum of resident sizes (RSS) would count
@@ -27,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
+import resource
 import subprocess
 import sys
 import tempfile
@@ -79,7 +84,7 @@ class _PeakMemory:
 
 def run_distributed(path: Path) -> dict[str, Any]:
     """``ddvi run path --quiet`` as a new user runs it; wall time, peak PSS, summary."""
-    t0 = time.perf_counter()
+    t0, launched_ns, cpu0 = time.perf_counter(), time.time_ns(), _children_cpu()
     proc = subprocess.Popen(
         [sys.executable, "-m", "services.cli", "run", str(path), "--quiet"],
         stdout=subprocess.PIPE,
@@ -88,27 +93,39 @@ def run_distributed(path: Path) -> dict[str, Any]:
     )
     memory = _PeakMemory(proc.pid)
     out, err = proc.communicate()
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     peak = memory.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"ddvi run {path} failed ({proc.returncode}): {err[-2000:]}")
     folder = Path(out.strip().splitlines()[-1])
     summary = json.loads((folder / "summary.json").read_text())
+    first, last = _clock_span(folder / RECORDING)
     return {
         "wall_s": wall,
         "mission_wall_s": summary["wall_s"],
-        "loop_s": _clock_span(folder / RECORDING),
+        "loop_s": (last - first) / 1e9,
+        "startup_s": (first - launched_ns) / 1e9,
+        "cpu_s": cpu,
         "pss_bytes": peak,
         "summary": summary,
     }
 
 
-def _clock_span(path: Path) -> float:
-    """Wall seconds from the first to the last clock message the monitor recorded: the
-    lock-step loop, without the services' start-up and final stats."""
+def _children_cpu() -> float:
+    """CPU seconds (user and system) of this process's children waited for so far, and of
+    theirs: a run's processes, which its launcher waits for.  Unlike wall time, it does not
+    grow with what else the machine runs."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _clock_span(path: Path) -> tuple[int, int]:
+    """Receive times (ns since the epoch) of the first and the last clock message the monitor
+    recorded: the lock-step loop lies between, without the services' start-up and final
+    stats."""
     with path.open("rb") as f:
         stamps = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
-    return (max(stamps) - min(stamps)) / 1e9
+    return min(stamps), max(stamps)
 
 
 def _row(
@@ -136,7 +153,7 @@ def _row(
 def run_single(path: Path) -> dict[str, Any]:
     """The same deployment stepped in one fresh process (imports included), no bus; with the
     loop's wall time and each service's share of it (``run_in_process``'s timing)."""
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _children_cpu()
     proc = subprocess.Popen(
         [sys.executable, "-m", "benchmarks.mission", str(path)],
         stdout=subprocess.PIPE,
@@ -145,11 +162,12 @@ def run_single(path: Path) -> dict[str, Any]:
     )
     memory = _PeakMemory(proc.pid)
     out, err = proc.communicate()
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     peak = memory.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"in-process run of {path} failed: {err[-2000:]}")
-    return {"wall_s": wall, "pss_bytes": peak, **json.loads(out.strip().splitlines()[-1])}
+    return {"wall_s": wall, "cpu_s": cpu, "pss_bytes": peak,
+            **json.loads(out.strip().splitlines()[-1])}  # fmt: skip
 
 
 def run_single_loop(path: str) -> dict[str, Any]:
@@ -173,16 +191,23 @@ def bench_mission(quick: bool = False) -> list[dict[str, Any]]:
         dist = run_distributed(path)
     timing = single["timing"]
     steps = int(timing.pop("steps"))
-    floors = {layer: mission_floor(dep, timing, steps, layer) for layer in ("plain", "bus")}
+    floors = {
+        (layer, topology): mission_floor(dep, timing, steps, layer, topology)
+        for layer, topology in (("plain", "peer"), ("plain", "routed"), ("bus", "peer"))
+    }
     return _whole_run_rows(table["run"]["orbits"], duration(dep), dist, single) + _loop_rows(
         dist["loop_s"], single["loop_s"], floors, timing, steps
     )
 
 
-def mission_floor(dep: Deployment, timing: dict[str, float], steps: int, layer: str) -> float:
-    """The lock-step floor's loop (s) for ``dep`` on ``layer``: the same processes, messages
-    and work (each service's share of the one-process run, ``timing``, over ``steps``) as
-    the distributed run, with services and a monitor that cost nothing beyond that work."""
+def mission_floor(
+    dep: Deployment, timing: dict[str, float], steps: int, layer: str, topology: str = "peer"
+) -> dict[str, Any]:
+    """The lock-step floor's loop (s) for ``dep`` on ``layer`` and ``topology``
+    (``benchmarks.floor``): the same processes, messages and work (each service's share of
+    the one-process run, ``timing``, over ``steps``) as the distributed run, with services
+    and a monitor that cost nothing beyond that work (and, routed, the recording); with the
+    CPU its processes spent (``cpu_s``)."""
     return run_floor(
         [d.name for d in dep.deputy],
         steps,
@@ -190,7 +215,8 @@ def mission_floor(dep: Deployment, timing: dict[str, float], steps: int, layer: 
         dt=dep.run.nav_period,
         spins={name: spent / steps for name, spent in timing.items()},
         layer=layer,
-    )["loop_s"]
+        topology=topology,
+    )
 
 
 def _whole_run_rows(
@@ -208,10 +234,27 @@ def _whole_run_rows(
             single["wall_s"],
             base,
             ratio,
-            "<= 2x; 40 orbits < 30 s",
+            "<= 3x",
+        ),
+        _row(
+            "start-up: launch to first clock",
+            "s",
+            dist["startup_s"],
+            single["wall_s"] - single["loop_s"],
+            "one process: launch to its loop",
+            dist["startup_s"] / (single["wall_s"] - single["loop_s"]),
+            "< 2 s",
         ),
         _row(
             "simulated s per wall s", "x", sim / dist["wall_s"], sim / single["wall_s"], base, ratio
+        ),
+        _row(
+            "CPU of all processes, start-up included (not inflated by a loaded machine)",
+            "s",
+            dist["cpu_s"],
+            single["cpu_s"],
+            base,
+            dist["cpu_s"] / single["cpu_s"],
         ),
         _row(
             "peak memory (PSS), all processes",
@@ -220,76 +263,59 @@ def _whole_run_rows(
             single["pss_bytes"] / 1e6,
             base,
             dist["pss_bytes"] / single["pss_bytes"],
+            "<= 350 MB",
         ),
     ]
 
 
 def _loop_rows(
-    loop: float, single_loop: float, floors: dict[str, float], timing: dict[str, float],
-    steps: int,
+    loop: float, single_loop: float, floors: dict[tuple[str, str], dict[str, Any]],
+    timing: dict[str, float], steps: int,
 ) -> list[dict[str, Any]]:  # fmt: skip
     """The lock-step loop alone (s), distributed (``loop``) against one process
-    (``single_loop``), and split by the floors into the architecture's, the bus layer's and
-    the services' own cost; ``timing``: each service's work (s) over ``steps``."""
+    (``single_loop``), and split by the floors (by layer and topology) into the topology's,
+    the bus layer's and the services' own cost; ``timing``: each service's work (s) over
+    ``steps``."""
     base = "one process, no bus: loop"
     shares = ", ".join(f"{name} {1e3 * spent / steps:.2f}" for name, spent in timing.items())
     work = sum(timing.values())
+    plain, routed, bus = (floors[k]["loop_s"] for k in (("plain", "peer"), ("plain", "routed"),
+                                                        ("bus", "peer")))  # fmt: skip
+    cpu = {k: f["cpu_s"] for k, f in floors.items()}
     return [
-        _row(
-            f"loop only: first to last clock ({steps:,} lock-step steps)",
-            "s",
-            loop,
-            single_loop,
-            base,
-            loop / single_loop,
-        ),
-        _row(
-            "floor: plain zenoh, same processes, messages and work",
-            "s",
-            floors["plain"],
-            single_loop,
-            base,
-            floors["plain"] / single_loop,
-        ),
-        _row(
-            f"one process's work, ms a step: {shares}",
-            "ms",
-            1e3 * work / steps,
-            1e3 * single_loop / steps,
-            base,
-            work / single_loop,
-        ),
-        _row(
-            "floor on the project's Bus",
-            "s",
-            floors["bus"],
-            floors["plain"],
-            "floor: plain zenoh",
-            floors["bus"] / floors["plain"],
-        ),
-        _row(
-            "loop only, against the floor on the project's Bus",
-            "s",
-            loop,
-            floors["bus"],
-            "floor on the project's Bus",
-            loop / floors["bus"],
-        ),
-    ]
+        _row(f"loop only: first to last clock ({steps:,} lock-step steps)", "s", loop,
+             single_loop, base, loop / single_loop),
+        _row(f"one process's work, ms a step: {shares}", "ms", 1e3 * work / steps,
+             1e3 * single_loop / steps, base, work / single_loop),
+        _row("floor: plain zenoh peers, same processes, messages and work", "s", plain,
+             single_loop, base, plain / single_loop),
+        _row("floor, mission's topology: authenticated clients of one router, access "
+             "control, every message recorded to MCAP", "s", routed, plain,
+             "floor: plain zenoh peers", routed / plain, "<= 1.3x"),
+        _row("floor on the mission's topology, CPU of all its processes and its router", "s",
+             cpu["plain", "routed"], cpu["plain", "peer"], "floor: plain zenoh peers",
+             cpu["plain", "routed"] / cpu["plain", "peer"]),
+        _row("floor on the project's Bus (peers)", "s", bus, plain, "floor: plain zenoh peers",
+             bus / plain),
+        _row("loop only, against the floor on the mission's topology", "s", loop, routed,
+             "floor, mission's topology", loop / routed, "<= 1.3x"),
+        _row("loop only, against the plain floor", "s", loop, plain, "floor: plain zenoh peers",
+             loop / plain, "<= 1.7x"),
+    ]  # fmt: skip
 
 
-def swarm_table(n: int, orbits: float) -> dict[str, Any]:
-    """n LQR deputies on along-track slots 1 km apart about the chief, each starting 240 m
-    above the chief's orbit at its slot."""
+def swarm_table(n: int, orbits: float, controller: str = "lqr") -> dict[str, Any]:
+    """n deputies on along-track slots 1 km apart about the chief, each starting 240 m above
+    the chief's orbit at its slot: LQR ones, or (``controller="ddvi"``) learning ones as the
+    default mission's learning deputy."""
     table = read_table(None)
     table["run"].update(name=f"swarm{n}", orbits=orbits)
-    template = table["deputy"][0]
+    template = next(d for d in table["deputy"] if d["controller"] == controller)
     deputies = []
     for k in range(n):
         slot = 1000.0 * (k - (n - 1) / 2)
         d = copy.deepcopy(template)
-        d.update(name=f"d{k:02d}", controller="lqr", y_ref=slot)
-        d.pop("learning", None)
+        d.update(name=f"d{k:02d}", controller=controller, y_ref=slot)
         # the chief's argument of latitude plus the slot's angle
         d["orbit"]["f"] = (
             table["chief"]["f"] + slot / table["chief"]["a"] * 180.0 / 3.141592653589793
@@ -299,44 +325,65 @@ def swarm_table(n: int, orbits: float) -> dict[str, Any]:
     return table
 
 
+SWARMS = ((1, "lqr"), (4, "lqr"), (16, "lqr"), (32, "lqr"), (8, "ddvi"))
+"""The swarms ``ddvi bench --only swarm`` flies: (deputies, controller)."""
+QUICK_SWARMS = ((1, "lqr"), (4, "lqr"))
+
+
 def bench_swarm(quick: bool = False) -> list[dict[str, Any]]:
-    sizes, orbits = ((1, 2, 4), 0.5) if quick else ((1, 2, 4, 8, 16), 2.0)
+    """Each swarm through ``ddvi run`` against the one-deputy swarm and against itself in one
+    process: loop per orbit and per deputy-orbit, memory, messages a second."""
+    swarms, orbits = (QUICK_SWARMS, 0.5) if quick else (SWARMS, 2.0)
     results = {}
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
-        for n in sizes:
-            path = write_deployment(swarm_table(n, orbits), Path(tmp), f"swarm{n}")
-            results[n] = run_distributed(path)
-    base = results[sizes[0]]
+        for n, controller in swarms:
+            table = swarm_table(n, orbits, controller)
+            path = write_deployment(table, Path(tmp), f"swarm{n}{controller}")
+            results[n, controller] = (run_distributed(path), run_single(path))
     rows = []
-    for n in sizes:
-        r = results[n]
-        per_orbit = r["mission_wall_s"] / r["summary"]["orbits"]
-        base_orbit = base["mission_wall_s"] / base["summary"]["orbits"]
-        rows.append(
-            _row(
-                f"{n:2d} deputies: wall per orbit",
-                "s",
-                per_orbit,
-                base_orbit,
-                "1 deputy",
-                per_orbit / base_orbit,
-                f"grows ~{n}x if linear",
-                bench="swarm",
-            )
-        )
-        rows.append(
-            _row(
-                f"{n:2d} deputies: peak memory (PSS), all processes",
-                "MB",
-                r["pss_bytes"] / 1e6,
-                base["pss_bytes"] / 1e6,
-                "1 deputy",
-                r["pss_bytes"] / base["pss_bytes"],
-                "",
-                bench="swarm",
-            )
-        )
+    for n, controller in swarms:
+        rows += _swarm_rows(n, controller, orbits, results)
     return rows
+
+
+def _swarm_rows(
+    n: int, controller: str, orbits: float, results: dict[tuple[int, str], tuple[dict, dict]]
+) -> list[dict[str, Any]]:
+    """One swarm's rows: its loop per orbit, per deputy-orbit, PSS and messages a second,
+    against the one-deputy swarm's (and, per deputy-orbit, the four-deputy swarm's) and its
+    own run in one process."""
+    dist, single = results[n, controller]
+    one, _ = results[1, "lqr"]
+    four, _ = results[4, "lqr"]  # every sweep has it
+    name = f"{n:2d} {controller} deput{'y' if n == 1 else 'ies'}"
+    per_orbit, one_orbit = dist["loop_s"] / orbits, one["loop_s"] / orbits
+    single_orbit = single["loop_s"] / orbits
+    rate, one_rate = _message_rate(dist), _message_rate(one)
+    pss, one_pss = dist["pss_bytes"] / 1e6, one["pss_bytes"] / 1e6
+
+    def row(metric: str, unit: str, project: float, base: float, base_name: str,
+            target: str = "") -> dict[str, Any]:  # fmt: skip
+        return _row(f"{name}: {metric}", unit, project, base, base_name, project / base,
+                    target, bench="swarm")  # fmt: skip
+
+    return [
+        row("loop per orbit", "s", per_orbit, one_orbit, "1 lqr deputy", f"~{n}x if linear"),
+        row("loop per orbit, against one process", "s", per_orbit, single_orbit,
+            "the same swarm, one process"),
+        row("loop per deputy-orbit", "s", per_orbit / n, four["loop_s"] / orbits / 4,
+            "4 lqr deputies", "<= 1.2x" if n == 32 else ""),
+        row("peak memory (PSS), all processes", "MB", pss, one_pss, "1 lqr deputy"),
+        row("peak memory (PSS) per deputy", "MB", pss / n, single["pss_bytes"] / 1e6 / n,
+            "the same swarm, one process"),
+        row("messages recorded a second", "1/s", rate, one_rate, "1 lqr deputy"),
+        row("CPU of the whole run per deputy-orbit", "s", dist["cpu_s"] / orbits / n,
+            four["cpu_s"] / orbits / 4, "4 lqr deputies"),
+    ]  # fmt: skip
+
+
+def _message_rate(dist: dict[str, Any]) -> float:
+    """Messages the monitor recorded a wall second of the loop."""
+    return dist["summary"]["messages"]["recorded"] / dist["loop_s"]
 
 
 def bench_basilisk(quick: bool = False) -> list[dict[str, Any]]:

@@ -9,7 +9,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
 from ddvi_core.learning import LearningError
@@ -53,6 +52,8 @@ def _wald_p_values(X: NDArray, y: NDArray, cluster: NDArray, groups: list[list[i
     """Per group of X's columns: the chi-squared tail probability of a Wald statistic as large
     as the fit's, were the group's coefficients zero, under the cluster-robust covariance of
     the least-squares fit of y (rows,) on X (rows, p)."""
+    import scipy.stats  # here: it costs a service's start-up a second
+
     theta, *_ = np.linalg.lstsq(X, y, rcond=None)
     sums = _cluster_sums(cluster, (y - X @ theta)[:, None] * X)
     G = np.linalg.pinv(X.T @ X)

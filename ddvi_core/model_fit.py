@@ -30,8 +30,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.integrate
-import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
 from ddvi_core.learning import (
@@ -186,6 +184,8 @@ def interval_pairs(
 
 def _cumulative(t: NDArray, y: NDArray) -> NDArray:
     """The running trapezoidal integral of y (K, k) over t (K,), zero at the first sample."""
+    import scipy.integrate  # when a fit needs it: it costs a service's start-up a second
+
     return scipy.integrate.cumulative_trapezoid(y, t, axis=0, initial=0.0) if t.size else y
 
 

@@ -54,8 +54,10 @@ os.environ.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)
 log = logging.getLogger("ddvi")
 
 MONITOR_WAIT = 10.0
-"""Wall seconds a service waits at start-up to see the monitor, so that what it publishes first
-is recorded: a message put before this session knows the monitor's subscription goes nowhere."""
+"""Wall seconds a service waits at start-up to see the monitor, at least (the run's
+``startup_timeout`` if longer: the launcher starts the monitor and the services together), so
+that what it publishes first is recorded: a message put before this session knows the
+monitor's subscription goes nowhere."""
 
 
 @dataclass
@@ -202,9 +204,9 @@ def parse_args(argv: list[str] | None, default_name: str) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
-def _see_monitor(session: Any, run: str, stop: threading.Event) -> bool:
-    """Wait up to MONITOR_WAIT s for the monitor's token, in slices: a stop request ends it."""
-    deadline = time.monotonic() + MONITOR_WAIT
+def _see_monitor(session: Any, run: str, stop: threading.Event, wait: float) -> bool:
+    """Wait up to ``wait`` s for the monitor's token, in slices: a stop request ends it."""
+    deadline = time.monotonic() + wait
     while not stop.is_set() and time.monotonic() < deadline:
         if wait_for_alive(session, run, ["monitor"], min(0.5, deadline - time.monotonic())):
             return True
@@ -249,10 +251,11 @@ def run_service(
         try:
             ctx = ServiceContext(dep, args.run, args.name, bus, stop, args.out, args.join)
             # the monitor subscribed before its token: seeing the token, this session knows
-            # the subscription (the launcher starts the monitor first: this is quick)
-            if args.name != "monitor" and not _see_monitor(session, args.run, stop):
+            # the subscription (the launcher starts the monitor with the others: a short wait)
+            wait = max(MONITOR_WAIT, dep.run.startup_timeout)
+            if args.name != "monitor" and not _see_monitor(session, args.run, stop, wait):
                 log.warning("the monitor is not seen after %g s: what this service publishes "
-                            "before it is may not be recorded", MONITOR_WAIT)  # fmt: skip
+                            "before it is may not be recorded", wait)  # fmt: skip
             bus.subscribe(fault_topic("link"), ctx.on_link_fault, expected_schema="fault")
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready

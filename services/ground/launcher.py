@@ -50,6 +50,10 @@ MODULES = {
 }
 
 
+REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
+REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
+
+
 def module_of(service: str) -> str:
     return MODULES[service.split("-", 1)[0]]
 
@@ -180,7 +184,7 @@ class Launcher:
             status = self._open_and_fly()
         finally:
             try:
-                self.stop_all()
+                self.stop_all(report_grace=self.report_wait())
             finally:
                 self.signals.restore()
         if self.monitor_died:
@@ -257,11 +261,10 @@ class Launcher:
     def _fly(self, session: Any, started: float) -> int:
         """Start the monitor, the flight services, then the environment, and supervise."""
         first = [s for s in self.dep.services if s != "environment"]
-        # the monitor first, so that it records everything from the first message on
-        self.start("monitor")
-        if (status := self._await(session, ["monitor"])) is not None:
-            return status
-        for name in first[1:]:
+        # the monitor first, and the others at once behind it: a service declares itself
+        # alive, and publishes, only once it sees the monitor (services.flight.runtime), so
+        # that the recording has everything from the first message on
+        for name in first:
             self.start(name)
         if (status := self._await(session, first)) is not None:
             return status
@@ -380,6 +383,12 @@ class Launcher:
             return 1
         return self._await_report(monitor, started)
 
+    def report_wait(self) -> float:
+        """Wall seconds the monitor has for its report once the mission is over: its series,
+        figures and table grow with the deputies (32 take about a minute on a loaded 2-core
+        machine)."""
+        return REPORT_WAIT + REPORT_WAIT_PER_DEPUTY * len(self.dep.deputy)
+
     def _hung(self, name: str) -> int:
         """``name`` gave up a lock-step wait (run.hang_timeout): end the run, with its word on
         which service is hung (docs/health.md)."""
@@ -391,12 +400,14 @@ class Launcher:
         return lifecycle.EXIT_FAILED
 
     def _await_report(self, monitor: subprocess.Popen, started: float) -> int:
-        """Wait for the monitor's report (60 s at most); the run's verdict from it."""
-        deadline = time.monotonic() + 60.0
+        """Wait for the monitor's report (``report_wait`` s at most); the run's verdict from
+        it."""
+        wait = self.report_wait()
+        deadline = time.monotonic() + wait
         while monitor.poll() is None and time.monotonic() < deadline:
             time.sleep(0.1)  # a stop signal now changes nothing: the report is being written
         if monitor.poll() is None:
-            self.say("monitor did not finish its report within 60 s", error=True)
+            self.say(f"monitor did not finish its report within {wait:g} s", error=True)
             return 1
         summary = self.out / "summary.json"
         if monitor.returncode != 0 or not summary.is_file():

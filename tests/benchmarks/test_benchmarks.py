@@ -75,15 +75,26 @@ def test_one_process_timing_splits_its_work_among_the_services() -> None:
 
 
 @pytest.mark.integration
-@pytest.mark.parametrize("layer", ["plain", "bus"])
-def test_floor_carries_every_message_and_waits_on_the_chain(layer: str) -> None:
+@pytest.mark.parametrize(
+    ("layer", "topology"), [("plain", "peer"), ("bus", "peer"), ("plain", "routed")]
+)
+def test_floor_carries_every_message_and_waits_on_the_chain(layer: str, topology: str) -> None:
     """Three deputies, 40 steps: the monitor has every sample, and each step waits for the
     environment's 3 ms of work and then a navigation's 3 ms (lock-step: in series)."""
     spins = {"environment": 0.003, "nav-b": 0.003}
-    floor = run_floor(["a", "b", "c"], 40, samples=3, spins=spins, layer=layer)
+    floor = run_floor(["a", "b", "c"], 40, samples=3, spins=spins, layer=layer, topology=topology)
     assert floor["steps"] == 40
     assert floor["received"] == 40 * (3 + 3 + 2 * 3) + 1
     assert floor["loop_s"] >= 40 * 0.006
+
+
+@pytest.mark.integration
+def test_routed_floor_records_every_message_through_the_access_controlled_router() -> None:
+    """On the mission's topology every message of a step is recorded, one MCAP message each:
+    a step's 3 samples of 2 truths, the exostate and a navigation, its clock and command;
+    every put passed the router's access control (a refused one would be missing)."""
+    floor = run_floor(["a"], 20, samples=3, layer="bus", topology="routed")
+    assert floor["recorded"] == 20 * (3 * (2 + 1 + 1) + 1 + 1)
 
 
 @pytest.mark.integration
@@ -99,6 +110,8 @@ def test_floor_refuses_an_empty_mission_and_an_unknown_layer() -> None:
         run_floor([], 10)
     with pytest.raises(ValueError, match="layer 'zmq' is not one of"):
         run_floor(["a"], 10, layer="zmq")
+    with pytest.raises(ValueError, match="topology 'mesh' is not one of"):
+        run_floor(["a"], 10, topology="mesh")
 
 
 def test_ddvi_bench_without_the_benchmarks_says_why_in_one_line(monkeypatch, capsys) -> None:
@@ -108,3 +121,42 @@ def test_ddvi_bench_without_the_benchmarks_says_why_in_one_line(monkeypatch, cap
     assert main(["bench", "--quick"]) == EXIT_USAGE
     err = capsys.readouterr().err
     assert err.startswith("ddvi bench: cannot import the benchmarks") and err.count("\n") == 1
+
+
+def test_swarm_tables_are_valid_deployments_of_lqr_or_learning_deputies() -> None:
+    from benchmarks.mission import swarm_table
+
+    lqr = deployment_from_table(swarm_table(32, 2.0))
+    assert [d.name for d in lqr.deputy] == [f"d{k:02d}" for k in range(32)]
+    assert {d.controller for d in lqr.deputy} == {"lqr"}
+    assert [d.y_ref for d in lqr.deputy][:2] == [-15500.0, -14500.0]
+    learning = deployment_from_table(swarm_table(8, 2.0, controller="ddvi"))
+    assert {d.controller for d in learning.deputy} == {"ddvi"}
+    default = deployment_from_table(read_table(None))
+    assert (
+        learning.deputy[0].learning
+        == next(d for d in default.deputy if d.controller == "ddvi").learning
+    )
+
+
+def test_swarm_rows_compare_a_deputy_orbit_with_the_four_deputy_swarm() -> None:
+    """The rows are ratios of the figures given: 32 deputies at 8 s of loop an orbit against
+    4 at 1.5 s are 0.25 s against 0.375 s a deputy-orbit."""
+    from benchmarks.mission import _swarm_rows
+
+    def run(loop: float, cpu: float, pss: float, messages: int) -> dict:
+        return {"loop_s": loop, "cpu_s": cpu, "pss_bytes": pss,
+                "summary": {"messages": {"recorded": messages}}}  # fmt: skip
+
+    results = {
+        (1, "lqr"): (run(1.0, 4.0, 300e6, 1000), run(0.5, 1.0, 80e6, 0)),
+        (4, "lqr"): (run(3.0, 10.0, 600e6, 4000), run(1.0, 2.0, 90e6, 0)),
+        (32, "lqr"): (run(16.0, 60.0, 3200e6, 32000), run(8.0, 10.0, 100e6, 0)),
+    }
+    rows = {r["metric"]: r for r in _swarm_rows(32, "lqr", 2.0, results)}
+    per_deputy = rows["32 lqr deputies: loop per deputy-orbit"]
+    assert (per_deputy["project"], per_deputy["baseline"]) == (0.25, 0.375)
+    assert per_deputy["cost_ratio"] == pytest.approx(2 / 3)
+    assert rows["32 lqr deputies: loop per orbit, against one process"]["cost_ratio"] == 2.0
+    assert rows["32 lqr deputies: peak memory (PSS) per deputy"]["project"] == 100.0
+    assert rows["32 lqr deputies: messages recorded a second"]["project"] == 2000.0
