@@ -107,7 +107,8 @@ def _clock_span(path: Path) -> float:
     """Wall seconds from the first to the last clock message the monitor recorded: the
     lock-step loop, without the services' start-up and final stats."""
     with path.open("rb") as f:
-        stamps = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
+        # publish_time: the monitor's receive wall time (services.ground.recording)
+        stamps = [m.publish_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
     return (max(stamps) - min(stamps)) / 1e9
 
 

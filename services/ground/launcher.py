@@ -72,8 +72,10 @@ class Launcher:
         out_root: str | None = None,
         quiet: bool = False,
         folder_mode: int | None = None,
+        live: str | None = None,
     ) -> None:
         self.dep = dep
+        self.live = live  # HOST:PORT the monitor serves the live view on (services.ground.live)
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -122,6 +124,7 @@ class Launcher:
             "--out",
             str(self.out),
             *(["--join"] if join else []),
+            *(["--live", self.live] if name == "monitor" and self.live else []),
             *credentials.service_arguments(self.dep, self.out, name),
         ]
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
@@ -258,6 +261,9 @@ class Launcher:
         self.start("monitor")
         if (status := self._await(session, ["monitor"])) is not None:
             return status
+        if self.live:
+            self.say(f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
+                     "WebSocket; docs/live.md)")  # fmt: skip
         for name in first[1:]:
             self.start(name)
         if (status := self._await(session, first)) is not None:

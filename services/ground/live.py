@@ -1,0 +1,286 @@
+"""The live view: a run's messages served to Foxglove over its WebSocket protocol, as they arrive.
+
+``ddvi run --live [HOST:PORT]`` serves from the monitor (the process that receives every
+message already); ``ddvi monitor --run R --live [HOST:PORT]`` from a tap on a running mission.
+``LiveServer`` (``foxglove-sdk``, an optional dependency: ``INSTALL``) advertises one channel
+per topic of the run (``run_topics``), each with the JSON schema the recording gives it
+(``services.ground.recording``), and sends each message as the recording's JSON with its
+simulation time t as the message time.  The server's clock (the protocol's ``time``
+capability, which Foxglove stamps received messages with) is the mission's simulation time,
+moved by the time master's clock messages.  Beside the bus topics it serves
+``reference/<sc>/gains``: the optimal gains K*, L* of the truth's model
+(``services.ground.scoring.reference_gains``), sent with each of the deputy's gains messages
+so that a plot shows the flown gains against them.
+
+The server never holds the caller up: a message no client subscribes to is not even encoded,
+and a client that reads too slowly loses its oldest messages (``BACKLOG``) instead of slowing
+the sender.  An error in the live view is logged and counted; it never reaches the recording.
+"""
+
+from __future__ import annotations
+
+import functools
+import ipaddress
+import json
+import logging
+import socket
+from dataclasses import dataclass
+from typing import Any
+
+import orjson
+
+from services.config import Deployment
+from services.ground.recording import (
+    ALIVE_SCHEMA,
+    REJECTED_SCHEMA,
+    message_json_schema,
+    message_record,
+    ns,
+    rejected_record,
+)
+from services.interface import SCHEMAS, Message, MessageError, topics
+
+log = logging.getLogger("ddvi.live")
+
+LIVE_DEFAULT = "127.0.0.1:8765"
+"""Where ``--live`` serves without an address: localhost, Foxglove's default port."""
+INSTALL = "pip install 'foxglove-sdk>=0.30'"
+"""The command that adds the live view's one dependency."""
+BACKLOG = 8192  # messages queued per client before its oldest are dropped (a few MB at most)
+TIME_MASTER = "environment"  # the one service whose clock moves the live view's time
+REFERENCE_SCHEMA: dict[str, Any] = {
+    "title": "ddvi.reference_gains",
+    "type": "object",
+    "description": "K*, L*: the optimal gains of the truth's linear model (live view only)",
+    "properties": {
+        "sc": {"type": "string"},
+        "t": {"type": "number", "description": "simulation time, s"},
+        "K": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+        "L": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+    },
+    "required": ["sc", "t", "K", "L"],
+}
+
+
+class LiveError(ValueError):
+    """``--live`` cannot serve: one line saying why and what to do."""
+
+
+@dataclass(frozen=True)
+class LiveAddress:
+    """Where the live view listens."""
+
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}"
+
+    def __str__(self) -> str:
+        return f"{self.host}:{self.port}"
+
+
+def parse_address(text: str) -> LiveAddress:
+    """``HOST:PORT`` (or ``PORT``, on localhost) as a LiveAddress; LiveError when it is not one."""
+    host, sep, port = text.strip().rpartition(":")
+    host = host.strip("[]") if sep else "127.0.0.1"
+    try:
+        number = int(port)
+    except ValueError:
+        number = 0
+    if not host or not 1 <= number <= 65535:
+        raise LiveError(f"--live {text!r}: give HOST:PORT, e.g. {LIVE_DEFAULT} (a deployment "
+                        "goes before --live)")  # fmt: skip
+    return LiveAddress(host, number)
+
+
+def foxglove_missing() -> str | None:
+    """Why the live view cannot run here (its package is not installed), or None."""
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        return f"--live needs the foxglove-sdk package, which is not installed: {INSTALL}"
+    return None
+
+
+def check_live(text: str) -> LiveAddress:
+    """The address ``--live`` names, once the package is there and the port is free;
+    LiveError (one line) otherwise."""
+    if (missing := foxglove_missing()) is not None:
+        raise LiveError(missing)
+    address = parse_address(text)
+    family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server binds
+        try:
+            s.bind((address.host, address.port))
+        except OSError as exc:
+            raise LiveError(f"--live {address}: cannot listen there ({exc.strerror}); give "
+                            "another HOST:PORT") from exc  # fmt: skip
+    return address
+
+
+def exposure_warning(address: LiveAddress) -> str | None:
+    """A warning when the live view listens beyond this machine (it has no authentication)."""
+    try:
+        if ipaddress.ip_address(address.host).is_loopback:
+            return None
+    except ValueError:
+        if address.host == "localhost":
+            return None
+    return (f"the live view on {address} serves every message of the run, unauthenticated, to "
+            "anyone who can reach it")  # fmt: skip
+
+
+@functools.cache
+def _bus_schema(name: str) -> dict[str, Any]:
+    """The recording's JSON schema of a bus message type, built once."""
+    return message_json_schema(SCHEMAS[name])
+
+
+def run_topics(dep: Deployment) -> dict[str, str]:
+    """Every topic a run of ``dep`` may carry (``topics.TOPOLOGY``) and its schema."""
+    deputies = [d.name for d in dep.deputy]
+    return topics.concrete_topics(
+        {"craft": ["chief", *deputies], "sc": deputies, "service": [*dep.services, "launcher"]}
+    )
+
+
+def reference_gains(dep: Deployment) -> dict[str, tuple[list[Any], list[Any]]]:
+    """Deputy -> (K*, L*) as lists, for the deputies whose truth has optimal gains."""
+    from services.ground.scoring import reference_gains as optimal
+
+    out = {}
+    for d in dep.deputy:
+        K, L = optimal(dep, d)
+        if K is not None and L is not None:
+            out[d.name] = (K.tolist(), L.tolist())
+    return out
+
+
+class LiveServer:
+    """A Foxglove WebSocket server of one run's messages (see the module's docstring)."""
+
+    def __init__(
+        self,
+        address: LiveAddress,
+        name: str,
+        advertise: dict[str, tuple[str, dict[str, Any]]],
+        references: dict[str, tuple[list[Any], list[Any]]],
+    ) -> None:
+        """Listen on ``address`` and advertise ``advertise`` (topic -> (schema name, JSON
+        schema)) at once; other topics are advertised when their first message comes."""
+        import foxglove
+        from foxglove.websocket import Capability
+
+        self._foxglove = foxglove
+        self._context = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self._schema_names: dict[str, str] = {}  # topic -> its channel's schema name
+        self._references = references
+        self._time = -1
+        self.counters = {"served": 0, "errors": 0, "unserved": 0}
+        for topic, (schema_name, schema) in advertise.items():
+            self._channel(topic, schema_name, schema)
+        self._server = foxglove.start_server(
+            name=name,
+            host=address.host,
+            port=address.port,
+            capabilities=[Capability.Time],
+            context=self._context,
+            message_backlog_size=BACKLOG,
+        )
+
+    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any]) -> Any:
+        channel = self._channels.get(topic)
+        if channel is None:
+            data = json.dumps(schema).encode()  # the recording's schema bytes
+            channel = self._channels[topic] = self._foxglove.Channel(
+                topic,
+                schema=self._foxglove.Schema(name=schema_name, encoding="jsonschema", data=data),
+                message_encoding="json",
+                context=self._context,
+            )
+            self._schema_names[topic] = schema_name
+        return channel
+
+    def _send(
+        self, topic: str, schema_name: str, schema: dict[str, Any], data: Any, t: int
+    ) -> None:
+        channel = self._channel(topic, schema_name, schema)
+        if self._schema_names[topic] != schema_name:  # one channel a topic: a stray schema
+            self.counters["unserved"] += 1
+        elif channel.has_sinks():  # nobody subscribed: not even encoded
+            channel.log(orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY), log_time=t)
+            self.counters["served"] += 1
+
+    def _failed(self, what: str) -> None:
+        n = self.counters["errors"] = self.counters["errors"] + 1
+        if n <= 10 or n % 1000 == 0:
+            log.exception("live view: could not serve %s (#%d)", what, n)
+
+    def message(self, topic: str, msg: Message) -> None:
+        """Serve a decoded bus message at its simulation time; the time master's clock moves
+        the server's time."""
+        try:
+            t = ns(msg.t)
+            if msg.schema == "clock" and msg.src == TIME_MASTER and t > self._time:
+                self._time = t
+                self._server.broadcast_time(t)
+            schema = _bus_schema(msg.schema)
+            self._send(topic, f"ddvi.{msg.schema}", schema, message_record(msg), t)
+            if msg.schema == "gains":
+                self._reference(topic.split("/")[1], msg.t)  # the topic's deputy, not the body's
+        except Exception:
+            self._failed(topic)
+
+    def _reference(self, sc: str, t: float) -> None:
+        if (gains := self._references.get(sc)) is not None:
+            data = {"sc": sc, "t": t, "K": gains[0], "L": gains[1]}
+            self._send(f"reference/{sc}/gains", "ddvi.reference_gains", REFERENCE_SCHEMA, data,
+                       ns(t))  # fmt: skip
+
+    def rejected(self, topic: str, key: str, payload: bytes, err: MessageError, t: float) -> None:
+        """Serve a payload that did not decode, as the recording has it, at simulation time t."""
+        try:
+            data = rejected_record(key, payload, err)
+            self._send(f"rejected/{topic}", "ddvi.rejected", REJECTED_SCHEMA, data, ns(t))
+        except Exception:
+            self._failed(f"rejected/{topic}")
+
+    def alive(self, service: str, alive: bool, t: float) -> None:
+        """Serve a liveliness change, as the recording has it, at simulation time t."""
+        try:
+            data = {"service": service, "alive": alive}
+            self._send(topics.alive_topic(service), "ddvi.alive", ALIVE_SCHEMA, data, ns(t))
+        except Exception:
+            self._failed(topics.alive_topic(service))
+
+    def topics(self) -> list[str]:
+        """The topics advertised so far."""
+        return list(self._channels)
+
+    def close(self) -> None:
+        """Stop serving (clients see the connection close); idempotent."""
+        try:
+            self._server.stop()
+        except Exception:
+            log.exception("live view: could not stop the server")
+        log.info("live view closed: %s", self.counters)
+
+
+def live_server(
+    address: LiveAddress, dep: Deployment, run: str, liveliness: bool = True
+) -> LiveServer:
+    """A LiveServer of ``run`` advertising every topic of ``dep`` (with its liveliness topics:
+    ``liveliness``) and K* of each deputy."""
+    advertise = {t: (f"ddvi.{s}", _bus_schema(s)) for t, s in run_topics(dep).items()}
+    references = reference_gains(dep)
+    for sc in references:
+        advertise[f"reference/{sc}/gains"] = ("ddvi.reference_gains", REFERENCE_SCHEMA)
+    if liveliness:
+        for service in dep.services:
+            advertise[topics.alive_topic(service)] = ("ddvi.alive", ALIVE_SCHEMA)
+    return LiveServer(address, f"ddvi {run}", advertise, references)
