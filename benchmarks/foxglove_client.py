@@ -40,34 +40,54 @@ class FoxgloveClient:
     ``keep``: keep every message (else count them)."""
 
     def __init__(self, url: str, timeout: float = 30.0, keep: bool = True) -> None:
-        from websockets.sync.client import connect
-
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                self._ws = connect(url, subprotocols=[SUBPROTOCOL], max_size=None)  # type: ignore[list-item]
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.1)
-        self.subprotocol = self._ws.subprotocol
         self.keep = keep
         self.info: dict[str, Any] = {}
         self.channels: dict[int, dict[str, Any]] = {}  # channel id -> its advertisement
         self.messages: list[Received] = []
         self.counts: dict[str, int] = {}  # topic -> messages received
         self.times: list[int] = []  # the server's time frames, ns
+        self.subprotocol: str | None = None
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
+        self._ws: Any = None
+        self._error: BaseException | None = None
+        self._connected = threading.Event()
         self.closed = threading.Event()
-        self._thread = threading.Thread(target=self._read, name="foxglove-client", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, args=(url, timeout), name="foxglove-client", daemon=True
+        )
         self._thread.start()
+        self._connected.wait()
+        if self._error is not None:
+            raise self._error
 
-    def _read(self) -> None:
+    def _run(self, url: str, timeout: float) -> None:
+        from websockets.sync.client import connect
+
+        deadline = time.monotonic() + timeout
         try:
-            for frame in self._ws:
+            while True:
+                try:
+                    ws = connect(url, subprotocols=[SUBPROTOCOL], max_size=None)  # type: ignore[list-item]
+                    break
+                except OSError:
+                    if time.monotonic() > deadline:
+                        raise
+                    time.sleep(0.1)
+        except BaseException as exc:
+            self._error = exc
+            self._connected.set()
+            self.closed.set()
+            return
+        with ws:
+            self._ws, self.subprotocol = ws, ws.subprotocol
+            self._connected.set()
+            self._read(ws)
+
+    def _read(self, ws: Any) -> None:
+        try:
+            for frame in ws:
                 if isinstance(frame, str):
                     self._control(json.loads(frame))
                 else:

@@ -8,9 +8,10 @@ per topic of the run (``run_topics``), each with the JSON schema the recording g
 simulation time t as the message time.  The server's clock (the protocol's ``time``
 capability, which Foxglove stamps received messages with) is the mission's simulation time,
 moved by the time master's clock messages.  Beside the bus topics it serves
-``reference/<sc>/gains``: the optimal gains K*, L* of the truth's model
-(``services.ground.scoring.reference_gains``), sent with each of the deputy's gains messages
-so that a plot shows the flown gains against them.
+``live/<sc>/gains`` (``live_gains_topic``), sent with each of a deputy's gains messages: the
+gains it flies and the optimal gains K*, L* of the truth's model
+(``services.ground.scoring.reference_gains``), each flattened, which Foxglove's message paths
+index (they index one array level, and K is a matrix).
 
 The server never holds the caller up: a message no client subscribes to is not even encoded,
 and a client that reads too slowly loses its oldest messages (``BACKLOG``) instead of slowing
@@ -48,18 +49,27 @@ INSTALL = "pip install 'foxglove-sdk>=0.30'"
 """The command that adds the live view's one dependency."""
 BACKLOG = 8192  # messages queued per client before its oldest are dropped (a few MB at most)
 TIME_MASTER = "environment"  # the one service whose clock moves the live view's time
-REFERENCE_SCHEMA: dict[str, Any] = {
-    "title": "ddvi.reference_gains",
+_ROW = {"type": "array", "items": {"type": "number"}}
+LIVE_GAINS_SCHEMA: dict[str, Any] = {
+    "title": "ddvi.live_gains",
     "type": "object",
-    "description": "K*, L*: the optimal gains of the truth's linear model (live view only)",
+    "description": "a deputy's flown gains against the optimal ones, flattened (live view only)",
     "properties": {
         "sc": {"type": "string"},
         "t": {"type": "number", "description": "simulation time, s"},
-        "K": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
-        "L": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+        "source": {"type": "string", "description": "where the flown gains come from"},
+        "K": _ROW | {"description": "the flown K, row by row (1/m, s/m)"},
+        "L": _ROW | {"description": "the flown L, row by row (1)"},
+        "K_star": _ROW | {"description": "K* of the truth's model (empty: none)"},
+        "L_star": _ROW | {"description": "L* of the truth's model (empty: none)"},
     },
-    "required": ["sc", "t", "K", "L"],
+    "required": ["sc", "t", "source", "K", "L", "K_star", "L_star"],
 }
+
+
+def live_gains_topic(deputy: str) -> str:
+    """``live/<deputy>/gains``: the live view's gains against K* (``LIVE_GAINS_SCHEMA``)."""
+    return f"live/{deputy}/gains"
 
 
 class LiveError(ValueError):
@@ -148,15 +158,15 @@ def run_topics(dep: Deployment) -> dict[str, str]:
     )
 
 
-def reference_gains(dep: Deployment) -> dict[str, tuple[list[Any], list[Any]]]:
-    """Deputy -> (K*, L*) as lists, for the deputies whose truth has optimal gains."""
+def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]]]:
+    """Deputy -> (K*, L*) flattened, empty for a deputy whose truth has no optimal gains."""
     from services.ground.scoring import reference_gains as optimal
 
-    out = {}
+    out: dict[str, tuple[list[float], list[float]]] = {}
     for d in dep.deputy:
         K, L = optimal(dep, d)
-        if K is not None and L is not None:
-            out[d.name] = (K.tolist(), L.tolist())
+        flat = K is not None and L is not None
+        out[d.name] = (K.ravel().tolist(), L.ravel().tolist()) if flat else ([], [])
     return out
 
 
@@ -168,7 +178,7 @@ class LiveServer:
         address: LiveAddress,
         name: str,
         advertise: dict[str, tuple[str, dict[str, Any]]],
-        references: dict[str, tuple[list[Any], list[Any]]],
+        references: dict[str, tuple[list[float], list[float]]],
     ) -> None:
         """Listen on ``address`` and advertise ``advertise`` (topic -> (schema name, JSON
         schema)) at once; other topics are advertised when their first message comes."""
@@ -232,15 +242,17 @@ class LiveServer:
             schema = _bus_schema(msg.schema)
             self._send(topic, f"ddvi.{msg.schema}", schema, message_record(msg), t)
             if msg.schema == "gains":
-                self._reference(topic.split("/")[1], msg.t)  # the topic's deputy, not the body's
+                self._gains(topic.split("/")[1], msg)  # the topic's deputy, not the body's
         except Exception:
             self._failed(topic)
 
-    def _reference(self, sc: str, t: float) -> None:
-        if (gains := self._references.get(sc)) is not None:
-            data = {"sc": sc, "t": t, "K": gains[0], "L": gains[1]}
-            self._send(f"reference/{sc}/gains", "ddvi.reference_gains", REFERENCE_SCHEMA, data,
-                       ns(t))  # fmt: skip
+    def _gains(self, sc: str, msg: Message) -> None:
+        K_star, L_star = self._references.get(sc, ([], []))
+        b = msg.body
+        data = {"sc": sc, "t": msg.t, "source": b["source"], "K": b["K"].ravel(),
+                "L": b["L"].ravel(), "K_star": K_star, "L_star": L_star}  # fmt: skip
+        topic = live_gains_topic(sc)
+        self._send(topic, "ddvi.live_gains", LIVE_GAINS_SCHEMA, data, ns(msg.t))
 
     def rejected(self, topic: str, key: str, payload: bytes, err: MessageError, t: float) -> None:
         """Serve a payload that did not decode, as the recording has it, at simulation time t."""
@@ -279,7 +291,7 @@ def live_server(
     advertise = {t: (f"ddvi.{s}", _bus_schema(s)) for t, s in run_topics(dep).items()}
     references = reference_gains(dep)
     for sc in references:
-        advertise[f"reference/{sc}/gains"] = ("ddvi.reference_gains", REFERENCE_SCHEMA)
+        advertise[live_gains_topic(sc)] = ("ddvi.live_gains", LIVE_GAINS_SCHEMA)
     if liveliness:
         for service in dep.services:
             advertise[topics.alive_topic(service)] = ("ddvi.alive", ALIVE_SCHEMA)
