@@ -25,6 +25,7 @@ import ipaddress
 import json
 import logging
 import socket
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,8 +61,8 @@ LIVE_GAINS_SCHEMA: dict[str, Any] = {
         "source": {"type": "string", "description": "where the flown gains come from"},
         "K": _ROW | {"description": "the flown K, row by row (1/m, s/m)"},
         "L": _ROW | {"description": "the flown L, row by row (1)"},
-        "K_star": _ROW | {"description": "K* of the truth's model (empty: none)"},
-        "L_star": _ROW | {"description": "L* of the truth's model (empty: none)"},
+        "K_star": _ROW | {"description": "K* of the truth's model (empty: none, or not yet)"},
+        "L_star": _ROW | {"description": "L* of the truth's model (empty: none, or not yet)"},
     },
     "required": ["sc", "t", "source", "K", "L", "K_star", "L_star"],
 }
@@ -189,7 +190,7 @@ class LiveServer:
         self._context = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._schema_names: dict[str, str] = {}  # topic -> its channel's schema name
-        self._references = references
+        self.references = references  # deputy -> (K*, L*), flattened
         self._time = -1
         self.counters = {"served": 0, "errors": 0, "unserved": 0}
         for topic, (schema_name, schema) in advertise.items():
@@ -247,7 +248,7 @@ class LiveServer:
             self._failed(topic)
 
     def _gains(self, sc: str, msg: Message) -> None:
-        K_star, L_star = self._references.get(sc, ([], []))
+        K_star, L_star = self.references.get(sc, ([], []))
         b = msg.body
         data = {"sc": sc, "t": msg.t, "source": b["source"], "K": b["K"].ravel(),
                 "L": b["L"].ravel(), "K_star": K_star, "L_star": L_star}  # fmt: skip
@@ -287,12 +288,22 @@ def live_server(
     address: LiveAddress, dep: Deployment, run: str, liveliness: bool = True
 ) -> LiveServer:
     """A LiveServer of ``run`` advertising every topic of ``dep`` (with its liveliness topics:
-    ``liveliness``) and K* of each deputy."""
+    ``liveliness``) and each deputy's gains against K*.  K* is solved on a thread of its own
+    (a second of imports and Riccati solves, which must not hold the caller up): the live
+    gains carry an empty K* until it is known."""
     advertise = {t: (f"ddvi.{s}", _bus_schema(s)) for t, s in run_topics(dep).items()}
-    references = reference_gains(dep)
-    for sc in references:
-        advertise[live_gains_topic(sc)] = ("ddvi.live_gains", LIVE_GAINS_SCHEMA)
+    for d in dep.deputy:
+        advertise[live_gains_topic(d.name)] = ("ddvi.live_gains", LIVE_GAINS_SCHEMA)
     if liveliness:
         for service in dep.services:
             advertise[topics.alive_topic(service)] = ("ddvi.alive", ALIVE_SCHEMA)
-    return LiveServer(address, f"ddvi {run}", advertise, references)
+    server = LiveServer(address, f"ddvi {run}", advertise, {})
+
+    def solve() -> None:
+        try:
+            server.references = reference_gains(dep)
+        except Exception:
+            log.exception("live view: no K* (its gains are served without)")
+
+    threading.Thread(target=solve, name="live-k-star", daemon=True).start()
+    return server

@@ -10,6 +10,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ from mcap.reader import make_reader
 
 from benchmarks.foxglove_client import SUBPROTOCOL, FoxgloveClient, Received
 from services.cli import main as ddvi
-from services.config import load_deployment
+from services.config import deployment_from_table, load_deployment
 from services.ground.live import (
     LIVE_GAINS_SCHEMA,
     LiveAddress,
@@ -28,6 +29,7 @@ from services.ground.live import (
     LiveServer,
     live_gains_topic,
     parse_address,
+    reference_gains,
     run_topics,
 )
 from services.ground.recording import (
@@ -254,11 +256,18 @@ def test_ddvi_run_live_serves_every_topic_at_simulation_time(
     for r in recorded:
         if not r.topic.startswith("alive/") and r.data["seq"] == first[r.topic]["seq"]:
             assert r.data == first[r.topic]
-    gains = first["live/ddvi/gains"]
-    assert (
-        len(gains["K"]) == len(gains["K_star"]) == 4
-        and gains["source"] in SCHEMAS["gains"].fields["source"].choices
-    )
+
+    # the flown gains against K* (solved beside the server: known by the end)
+    def last(topic: str) -> Any:
+        return next(m.json() for m in reversed(client.messages) if m.topic == topic)
+
+    K_star, L_star = reference_gains(deployment_from_table(tomllib.loads(SHORT)))["ddvi"]
+    flown = last("ctrl/ddvi/gains")
+    assert last("live/ddvi/gains") == {"sc": "ddvi", "t": flown["t"],
+                                       "source": flown["body"]["source"],
+                                       "K": flown["body"]["K"][0], "L": flown["body"]["L"][0],
+                                       "K_star": K_star, "L_star": L_star}  # fmt: skip
+    assert len(K_star) == 4 and len(L_star) == 5
     # the server's clock: the environment's simulation time, to the end of the mission
     assert client.times == sorted(client.times) and client.times[0] == 0
     assert client.times[-1] == ns(sim_time)
