@@ -36,11 +36,18 @@ class Received:
 
 class FoxgloveClient:
     """Connects to ``url`` (retrying until ``timeout`` s: the server may not listen yet),
-    subscribes to every channel advertised, and reads until the server closes or ``close``.
-    ``keep``: keep every message (else count them)."""
+    subscribes to every channel advertised (or those of ``topics``), and reads until the
+    server closes or ``close``.  ``keep``: keep every message (else count them)."""
 
-    def __init__(self, url: str, timeout: float = 30.0, keep: bool = True) -> None:
+    def __init__(
+        self,
+        url: str,
+        timeout: float = 30.0,
+        keep: bool = True,
+        topics: set[str] | None = None,
+    ) -> None:
         self.keep = keep
+        self.topics = topics
         self.info: dict[str, Any] = {}
         self.channels: dict[int, dict[str, Any]] = {}  # channel id -> its advertisement
         self.messages: list[Received] = []
@@ -103,7 +110,9 @@ class FoxgloveClient:
         elif msg["op"] == "advertise":
             with self._lock:
                 self.channels.update({c["id"]: c for c in msg["channels"]})
-            subs = [{"id": next(self._ids), "channelId": c["id"]} for c in msg["channels"]]
+            topics = self.topics
+            wanted = [c for c in msg["channels"] if topics is None or c["topic"] in topics]
+            subs = [{"id": next(self._ids), "channelId": c["id"]} for c in wanted]
             self._subscriptions.update({s["id"]: s["channelId"] for s in subs})
             self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 

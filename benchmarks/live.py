@@ -1,9 +1,11 @@
 """The live view's cost: the default mission through ``ddvi run --live`` with one client
-subscribed to every channel (``benchmarks.foxglove_client``, reading as Foxglove would)
-against the same mission without ``--live``, alternated, two runs each (``--quick``: 4 orbits,
-one run each).  Whole-run wall time and the lock-step loop (the first to the last clock the
-monitor recorded, by receive wall time); the client's messages against the recording's, and
-whether the live runs' final errors are the others' (the live view must not touch the flight).
+(``benchmarks.foxglove_client``, reading as Foxglove would) subscribed to every channel, and
+with one subscribed to the channels ``docs/foxglove-layout.json`` shows (what Foxglove with
+that layout subscribes to), against the same mission without ``--live``, alternated, two runs
+each (``--quick``: 4 orbits, one run each).  Whole-run wall time, the lock-step loop (the
+first to the last clock the monitor recorded, by receive wall time) and the CPU of the run's
+processes; the client's CPU and messages; whether the live runs' final errors are the others'
+(the live view must not touch the flight).
 
     python -m benchmarks.live [--quick] [--json]
 """
@@ -30,15 +32,45 @@ from services.ground.recording import RECORDING
 TARGET = "≤ 1.10"
 
 
-def run_once(path: Path, out: Path, live: bool) -> dict[str, Any]:
-    """``ddvi run path --quiet`` (with ``--live`` on a free port and one client reading every
-    channel): wall time, loop, summary and what the client received."""
+LAYOUT = Path(__file__).resolve().parents[1] / "docs" / "foxglove-layout.json"
+EVERY = "every channel"
+SHOWN = "the layout's channels"
+
+
+def layout_topics(path: Path = LAYOUT) -> set[str]:
+    """The topics a Foxglove layout's panels read (each message path's topic)."""
+    found: set[str] = set()
+
+    def walk(node: Any) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if key in ("value", "topicPath") and isinstance(value, str):
+                    found.add(value.partition(".")[0])
+                else:
+                    walk(value)
+        elif isinstance(node, list):
+            for item in node:
+                walk(item)
+
+    walk(json.loads(path.read_text())["configById"])
+    return found
+
+
+def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
+    """``ddvi run path --quiet`` (with ``--live`` on a free port and one client reading
+    ``live``: EVERY or SHOWN channel): wall time, loop, CPU, summary and what the client
+    received."""
     port = free_port()
     cmd = [sys.executable, "-m", "services.cli", "run", str(path), "--quiet", "--output", str(out)]
     cmd += ["--live", f"127.0.0.1:{port}"] if live else []
+    wanted = layout_topics() if live == SHOWN else None
     t0, cpu0, tree0 = time.perf_counter(), time.process_time(), _children_cpu()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=120, keep=False) if live else None
+    client = (
+        FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=120, keep=False, topics=wanted)
+        if live
+        else None
+    )
     stdout, stderr = proc.communicate()
     wall = time.perf_counter() - t0
     run_cpu = _children_cpu() - tree0  # the launcher and every service (it waits for them)
@@ -71,39 +103,49 @@ def bench_live(quick: bool = False) -> list[dict[str, Any]]:
     table = read_table(None)
     if quick:
         table["run"]["orbits"] = 4.0
-    runs: dict[bool, list[dict[str, Any]]] = {False: [], True: []}
+    runs: dict[str | None, list[dict[str, Any]]] = {None: [], EVERY: [], SHOWN: []}
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-live-") as tmp:
         path = write_deployment(table, Path(tmp), "mission")
         for _ in range(1 if quick else 2):
-            for live in (False, True):
+            for live in runs:
                 runs[live].append(run_once(path, Path(tmp) / "runs", live))
-    return _rows(table["run"]["orbits"], runs)
-
-
-def _rows(orbits: float, runs: dict[bool, list[dict[str, Any]]]) -> list[dict[str, Any]]:
     rows = []
-    for key, what in (("wall_s", "whole run"), ("loop_s", "lock-step loop"),
-                      ("run_cpu_s", "CPU of the run's processes")):  # fmt: skip
-        project = statistics.mean(r[key] for r in runs[True])
-        baseline = statistics.mean(r[key] for r in runs[False])
-        each = ", ".join(f"{r[key]:.1f}" for r in runs[True] + runs[False])
-        rows.append(_row(f"{orbits:g}-orbit mission, {what}, --live and one client (runs: {each})",
-                         "s", project, baseline, "without --live", project / baseline,
-                         TARGET, bench="live"))  # fmt: skip
-    live = runs[True][-1]
-    client_cpu = statistics.mean(r["client_cpu_s"] for r in runs[True])
-    rows.append(_row("CPU of the client (this process), against the run's without --live", "s",
-                     client_cpu, statistics.mean(r["run_cpu_s"] for r in runs[False]),
-                     "the run's CPU without --live", client_cpu / statistics.mean(
-                         r["run_cpu_s"] for r in runs[False]), bench="live"))  # fmt: skip
-    rows.append(_row("messages the client received (live gains included)", "count",
-                     live["received"], live["recorded"], "messages recorded",
-                     live["received"] / live["recorded"], bench="live"))  # fmt: skip
-    same = all(r["errors"] == runs[False][0]["errors"] for r in runs[True] + runs[False])
+    for live in (EVERY, SHOWN):
+        rows += _rows(table["run"]["orbits"], live, runs[live], runs[None])
+    everything = [r for rs in runs.values() for r in rs]
+    same = all(r["errors"] == runs[None][0]["errors"] for r in everything)
     rows.append(_row(f"final along-track errors identical with and without: {same}", "m",
-                     live["errors"].get("ddvi", float("nan")),
-                     runs[False][0]["errors"].get("ddvi", float("nan")), "without --live",
+                     runs[EVERY][-1]["errors"].get("ddvi", float("nan")),
+                     runs[None][0]["errors"].get("ddvi", float("nan")), "without --live",
                      1.0, bench="live"))  # fmt: skip
+    return rows
+
+
+def _rows(
+    orbits: float, what: str, live: list[dict[str, Any]], without: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    rows = []
+    for key, figure in (("wall_s", "whole run"), ("loop_s", "lock-step loop"),
+                        ("run_cpu_s", "CPU of the run's processes")):  # fmt: skip
+        project = statistics.mean(r[key] for r in live)
+        baseline = statistics.mean(r[key] for r in without)
+        each = (
+            ", ".join(f"{r[key]:.1f}" for r in live)
+            + " against "
+            + ", ".join(f"{r[key]:.1f}" for r in without)
+        )
+        rows.append(_row(f"{orbits:g}-orbit mission, {figure}, --live, a client of {what} "
+                         f"(runs: {each})", "s", project, baseline, "without --live",
+                         project / baseline, TARGET, bench="live"))  # fmt: skip
+    client_cpu = statistics.mean(r["client_cpu_s"] for r in live)
+    run_cpu = statistics.mean(r["run_cpu_s"] for r in without)
+    rows.append(_row(f"CPU of the client of {what} (this process)", "s", client_cpu, run_cpu,
+                     "the run's CPU without --live", client_cpu / run_cpu,
+                     bench="live"))  # fmt: skip
+    last = live[-1]
+    rows.append(_row(f"messages the client of {what} received", "count", last["received"],
+                     last["recorded"], "messages recorded", last["received"] / last["recorded"],
+                     bench="live"))  # fmt: skip
     return rows
 
 

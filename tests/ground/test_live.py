@@ -339,3 +339,60 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
 def _final_clock_served(client: FoxgloveClient) -> bool:
     clocks = [m for m in list(client.messages) if m.topic == "clock"]
     return bool(clocks) and clocks[-1].json()["body"]["final"]
+
+
+# ---- the layout -----------------------------------------------------------------------------
+
+
+def layout_paths(node: Any) -> Iterator[str]:
+    """Every message path of a Foxglove layout's panel configurations."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            if key in ("value", "topicPath") and isinstance(value, str):
+                yield value
+            else:
+                yield from layout_paths(value)
+    elif isinstance(node, list):
+        for item in node:
+            yield from layout_paths(item)
+
+
+def resolve(schema: dict[str, Any], path: str) -> dict[str, Any]:
+    """The JSON schema of the field ``path`` (``a.b[2].c``) names; KeyError when it names none."""
+    for part in path.split("."):
+        name, _, index = part.partition("[")
+        schema = schema["properties"][name]
+        if index:
+            i = int(index.rstrip("]"))
+            assert schema["type"] == "array" and i < schema.get("maxItems", i + 1), path
+            schema = schema["items"]
+    return schema
+
+
+def test_the_layout_plots_fields_the_live_view_serves() -> None:
+    """Each path of docs/foxglove-layout.json names a topic the default mission serves and a
+    number, string or boolean field of its schema; each panel it places is configured."""
+    layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+    dep = load_deployment(str(ROOT / "deployments" / "rendezvous.toml"))
+    schemas = {t: message_json_schema(SCHEMAS[s]) for t, s in run_topics(dep).items()}
+    schemas |= {live_gains_topic(d.name): LIVE_GAINS_SCHEMA for d in dep.deputy}
+    schemas |= {f"alive/{s}": ALIVE_SCHEMA for s in dep.services}
+    paths = list(layout_paths(layout["configById"]))
+    assert len(paths) >= 20
+    for path in paths:
+        topic, _, fields = path.partition(".")
+        leaf = resolve(schemas[topic], fields)
+        assert leaf["type"] in ("number", "string", "boolean", "object"), path
+    served = {p.partition(".")[0] for p in paths}
+    for d in dep.deputy:  # along-track, Hill x-y, attitude and status of each deputy
+        assert {f"nav/{d.name}/state", f"cmd/{d.name}/att", f"ctrl/{d.name}/status"} <= served
+    assert {"live/ddvi/gains"} | {f"alive/{s}" for s in dep.services} <= served
+
+    def placed(node: Any) -> Iterator[str]:
+        if isinstance(node, str):
+            yield node
+        elif isinstance(node, dict):
+            yield from placed(node.get("first"))
+            yield from placed(node.get("second"))
+
+    assert sorted(placed(layout["layout"])) == sorted(layout["configById"])
