@@ -271,9 +271,10 @@ class LiveServer:
         except Exception:
             self._failed(topics.alive_topic(service))
 
-    def topics(self) -> list[str]:
-        """The topics advertised so far."""
-        return list(self._channels)
+    def subscribed(self, topic: str) -> bool:
+        """Whether a client subscribes to ``topic`` now."""
+        channel = self._channels.get(topic)
+        return channel is not None and channel.has_sinks()
 
     def close(self) -> None:
         """Stop serving (clients see the connection close); idempotent."""

@@ -184,7 +184,7 @@ def test_the_server_sends_the_recordings_json_at_simulation_time(
     client = FoxgloveClient(url, timeout=10)
     try:
         assert client.subprotocol == SUBPROTOCOL and "time" in client.info["capabilities"]
-        assert wait_until(lambda: live._channels["nav/lqr/state"].has_sinks())
+        assert wait_until(lambda: live.subscribed("nav/lqr/state"))
         live.message("clock", clock(20.0, src="nav-lqr"))  # not the time master: no time
         live.message("clock", clock(10.0))
         live.message("nav/lqr/state", nav(12.5, seq=3))
@@ -210,7 +210,7 @@ def test_a_topic_outside_the_advertised_ones_gets_its_channel_on_its_first_messa
     try:
         live.alive("nav-lqr", True, 30.0)  # advertised now: the client subscribes after
         assert wait_until(lambda: "alive/nav-lqr" in client.advertised())
-        assert wait_until(lambda: live._channels["alive/nav-lqr"].has_sinks())
+        assert wait_until(lambda: live.subscribed("alive/nav-lqr"))
         live.alive("nav-lqr", False, 40.0)
         assert wait_until(lambda: client.counts.get("alive/nav-lqr") == 1)
         assert client.messages[-1].json() == {"service": "nav-lqr", "alive": False}
