@@ -183,8 +183,9 @@ def test_the_server_sends_the_recordings_json_at_simulation_time(
     assert live.counters["served"] == 0
     client = FoxgloveClient(url, timeout=10)
     try:
-        assert client.subprotocol == SUBPROTOCOL and "time" in client.info["capabilities"]
-        assert wait_until(lambda: live.subscribed("nav/lqr/state"))
+        assert client.subprotocol == SUBPROTOCOL
+        assert wait_until(lambda: "time" in client.info.get("capabilities", []))
+        assert wait_until(lambda: live.subscribed("nav/lqr/state") and live.subscribed("clock"))
         live.message("clock", clock(20.0, src="nav-lqr"))  # not the time master: no time
         live.message("clock", clock(10.0))
         live.message("nav/lqr/state", nav(12.5, seq=3))
