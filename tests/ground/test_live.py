@@ -220,6 +220,43 @@ def test_a_topic_outside_the_advertised_ones_gets_its_channel_on_its_first_messa
         client.close()
 
 
+@pytest.mark.integration  # 25 MB through a WebSocket: seconds
+def test_a_client_that_stops_reading_never_holds_the_sender_up(
+    server: tuple[LiveServer, str],
+) -> None:
+    """A client subscribed and then silent: its socket and its queue fill, its oldest
+    messages are dropped, and every ``message`` call still returns (the monitor's loop goes
+    on); a client connecting after is served."""
+    import threading
+
+    from websockets.sync.client import connect
+
+    live, url = server
+    with connect(url, subprotocols=[SUBPROTOCOL], max_queue=1) as stalled:  # type: ignore[list-item]
+        advertise = json.loads(stalled.recv())
+        while advertise["op"] != "advertise":
+            advertise = json.loads(stalled.recv())
+        subs = [{"id": c["id"], "channelId": c["id"]} for c in advertise["channels"]]
+        stalled.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        assert wait_until(lambda: live.subscribed("nav/lqr/state"))
+        many = [nav(10.0 * k, seq=k) for k in range(30_000)]  # ~25 MB of JSON, never read
+        sender = threading.Thread(target=lambda: [live.message("nav/lqr/state", m) for m in many])
+        sender.start()
+        sender.join(timeout=120)  # a safety net, not a speed figure: blocked, it never ends
+        assert not sender.is_alive()
+        assert live.counters["served"] == 30_000 and live.counters["errors"] == 0
+        fresh = FoxgloveClient(url, timeout=10)
+        try:
+
+            def served() -> bool:  # a clock each poll: the first ones may precede its subscription
+                live.message("clock", clock(1.0))
+                return fresh.counts.get("clock", 0) > 0
+
+            assert wait_until(served)
+        finally:
+            fresh.close()
+
+
 # ---- a run ----------------------------------------------------------------------------------
 
 
