@@ -180,7 +180,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     live = None
     if args.live is not None:
-        from services.ground.live import LiveError, check_live, exposure_warning
+        from services.ground.live_address import LiveError, check_live, exposure_warning
 
         try:
             address = check_live(args.live)
@@ -213,7 +213,7 @@ def _learn_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.live import LIVE_DEFAULT
+    from services.ground.live_address import LIVE_DEFAULT
 
     p.add_argument(
         "deployment",

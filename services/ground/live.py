@@ -2,16 +2,16 @@
 
 ``ddvi run --live [HOST:PORT]`` serves from the monitor (the process that receives every
 message already); ``ddvi monitor --run R --live [HOST:PORT]`` from a tap on a running mission.
-``LiveServer`` (``foxglove-sdk``, an optional dependency: ``INSTALL``) advertises one channel
-per topic of the run (``run_topics``), each with the JSON schema the recording gives it
-(``services.ground.recording``), and sends each message as the recording's JSON with its
-simulation time t as the message time.  The server's clock (the protocol's ``time``
-capability, which Foxglove stamps received messages with) is the mission's simulation time,
-moved by the time master's clock messages.  Beside the bus topics it serves
-``live/<sc>/gains`` (``live_gains_topic``), sent with each of a deputy's gains messages: the
-gains it flies and the optimal gains K*, L* of the truth's model
-(``services.ground.scoring.reference_gains``), each flattened, which Foxglove's message paths
-index (they index one array level, and K is a matrix).
+``LiveServer`` (``foxglove-sdk``, an optional dependency: ``live_address.INSTALL``)
+advertises one channel per topic of the run (``run_topics``), each with the JSON schema the
+recording gives it (``services.ground.recording``), and sends each message as the
+recording's JSON with its simulation time t as the message time.  The server's clock (the
+protocol's ``time`` capability, which Foxglove stamps received messages with) is the
+mission's simulation time, moved by the time master's clock messages.  Beside the bus
+topics it serves ``live/<sc>/gains`` (``live_gains_topic``), sent with each of a deputy's
+gains messages: the gains it flies and the optimal gains K*, L* of the truth's model
+(``services.ground.scoring.reference_gains``), each flattened, which Foxglove's message
+paths index (they index one array level, and K is a matrix).
 
 The server never holds the caller up: a message no client subscribes to is not even encoded,
 and a client that reads too slowly loses its oldest messages (``BACKLOG``) instead of slowing
@@ -21,17 +21,15 @@ the sender.  An error in the live view is logged and counted; it never reaches t
 from __future__ import annotations
 
 import functools
-import ipaddress
 import json
 import logging
-import socket
 import threading
-from dataclasses import dataclass
 from typing import Any
 
 import orjson
 
 from services.config import Deployment
+from services.ground.live_address import LiveAddress
 from services.ground.recording import (
     ALIVE_SCHEMA,
     REJECTED_SCHEMA,
@@ -44,10 +42,6 @@ from services.interface import SCHEMAS, Message, MessageError, topics
 
 log = logging.getLogger("ddvi.live")
 
-LIVE_DEFAULT = "127.0.0.1:8765"
-"""Where ``--live`` serves without an address: localhost, Foxglove's default port."""
-INSTALL = "pip install 'foxglove-sdk>=0.30'"
-"""The command that adds the live view's one dependency."""
 BACKLOG = 8192  # messages queued per client before its oldest are dropped (a few MB at most)
 TIME_MASTER = "environment"  # the one service whose clock moves the live view's time
 _ROW = {"type": "array", "items": {"type": "number"}}
@@ -71,78 +65,6 @@ LIVE_GAINS_SCHEMA: dict[str, Any] = {
 def live_gains_topic(deputy: str) -> str:
     """``live/<deputy>/gains``: the live view's gains against K* (``LIVE_GAINS_SCHEMA``)."""
     return f"live/{deputy}/gains"
-
-
-class LiveError(ValueError):
-    """``--live`` cannot serve: one line saying why and what to do."""
-
-
-@dataclass(frozen=True)
-class LiveAddress:
-    """Where the live view listens."""
-
-    host: str
-    port: int
-
-    @property
-    def url(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"ws://{host}:{self.port}"
-
-    def __str__(self) -> str:
-        return f"{self.host}:{self.port}"
-
-
-def parse_address(text: str) -> LiveAddress:
-    """``HOST:PORT`` (or ``PORT``, on localhost) as a LiveAddress; LiveError when it is not one."""
-    host, sep, port = text.strip().rpartition(":")
-    host = host.strip("[]") if sep else "127.0.0.1"
-    try:
-        number = int(port)
-    except ValueError:
-        number = 0
-    if not host or not 1 <= number <= 65535:
-        raise LiveError(f"--live {text!r}: give HOST:PORT, e.g. {LIVE_DEFAULT} (a deployment "
-                        "goes before --live)")  # fmt: skip
-    return LiveAddress(host, number)
-
-
-def foxglove_missing() -> str | None:
-    """Why the live view cannot run here (its package is not installed), or None."""
-    try:
-        import foxglove  # noqa: F401
-    except ImportError:
-        return f"--live needs the foxglove-sdk package, which is not installed: {INSTALL}"
-    return None
-
-
-def check_live(text: str) -> LiveAddress:
-    """The address ``--live`` names, once the package is there and the port is free;
-    LiveError (one line) otherwise."""
-    if (missing := foxglove_missing()) is not None:
-        raise LiveError(missing)
-    address = parse_address(text)
-    family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server binds
-        try:
-            s.bind((address.host, address.port))
-        except OSError as exc:
-            raise LiveError(f"--live {address}: cannot listen there ({exc.strerror}); give "
-                            "another HOST:PORT") from exc  # fmt: skip
-    return address
-
-
-def exposure_warning(address: LiveAddress) -> str | None:
-    """A warning when the live view listens beyond this machine (it has no authentication)."""
-    try:
-        if ipaddress.ip_address(address.host).is_loopback:
-            return None
-    except ValueError:
-        if address.host == "localhost":
-            return None
-    return (f"the live view on {address} serves every message of the run, unauthenticated, to "
-            "anyone who can reach it")  # fmt: skip
 
 
 @functools.cache

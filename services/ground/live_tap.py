@@ -28,13 +28,8 @@ from services.bus import open_session
 from services.bus.security import OBSERVER
 from services.config import Deployment, DeploymentError, deployment_from_table
 from services.ground.credentials import RunNotFoundError, find_run, run_folder
-from services.ground.live import (
-    LiveError,
-    LiveServer,
-    check_live,
-    exposure_warning,
-    live_server,
-)
+from services.ground.live import LiveServer, live_server
+from services.ground.live_address import LiveError, check_live, exposure_warning
 from services.ground.recording import RECORDING
 from services.interface import MessageError, decode, schema_for_topic, unpack_batch
 

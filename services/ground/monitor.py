@@ -60,7 +60,8 @@ import zenoh
 
 from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards
 from services.flight.runtime import ServiceContext, run_service
-from services.ground.live import LiveServer, live_server, parse_address
+from services.ground.live import LiveServer, live_server
+from services.ground.live_address import parse_address
 from services.ground.recording import RECORDING, TIMELINE, Recorder
 from services.ground.report import warm_up, write_report
 from services.ground.rundata import RunData

@@ -29,7 +29,7 @@ import zenoh
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
 from services.bus.security import OBSERVER
 from services.ground.credentials import RunNotFoundError, find_run
-from services.ground.live import LIVE_DEFAULT
+from services.ground.live_address import LIVE_DEFAULT
 from services.interface import MessageError, decode, unpack_batch
 
 

@@ -24,14 +24,12 @@ from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment
 from services.ground.live import (
     LIVE_GAINS_SCHEMA,
-    LiveAddress,
-    LiveError,
     LiveServer,
     live_gains_topic,
-    parse_address,
     reference_gains,
     run_topics,
 )
+from services.ground.live_address import LiveAddress, LiveError, parse_address
 from services.ground.recording import (
     ALIVE_SCHEMA,
     message_json_schema,
