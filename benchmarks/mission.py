@@ -124,7 +124,8 @@ def _clock_span(path: Path) -> tuple[int, int]:
     recorded: the lock-step loop lies between, without the services' start-up and final
     stats."""
     with path.open("rb") as f:
-        stamps = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
+        # publish_time: the monitor's receive wall time (services.ground.recording)
+        stamps = [m.publish_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
     return min(stamps), max(stamps)
 
 

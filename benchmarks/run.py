@@ -37,6 +37,7 @@ BENCHMARKS: dict[str, str] = {
     "swarm": "benchmarks.mission:bench_swarm",
     "basilisk": "benchmarks.mission:bench_basilisk",
     "flight": "benchmarks.flight:bench_flight",
+    "live": "benchmarks.live:bench_live",
 }
 
 

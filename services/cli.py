@@ -187,7 +187,21 @@ def cmd_run(args: argparse.Namespace) -> int:
     if (why := backend_missing(dep)) is not None:  # bad input, found before any launch
         print(f"ddvi run: {args.deployment or 'rendezvous'}: {why}", file=sys.stderr)
         return EXIT_USAGE
-    launcher = Launcher(dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode)
+    live = None
+    if args.live is not None:
+        from services.ground.live_address import LiveError, check_live, exposure_warning
+
+        try:
+            address = check_live(args.live)
+        except LiveError as exc:
+            print(f"ddvi run: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        if warning := exposure_warning(address):
+            print(f"ddvi run: warning: {warning}", file=sys.stderr)
+        live = str(address)
+    launcher = Launcher(
+        dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode, live=live
+    )
     return launcher.execute()
 
 
@@ -232,6 +246,8 @@ METHOD_HELP = """methods (docs/methods.md):
 
 
 def _run_arguments(p: argparse.ArgumentParser) -> None:
+    from services.ground.live_address import LIVE_DEFAULT
+
     p.add_argument(
         "deployment",
         nargs="?",
@@ -246,6 +262,14 @@ def _run_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the run folder's permissions, octal (default 0700, or run.folder_mode): 0750 "
         "lets the folder's group read the recording and the report (docs/security.md)",
+    )
+    p.add_argument(
+        "--live",
+        nargs="?",
+        const=LIVE_DEFAULT,
+        metavar="HOST:PORT",
+        help=f"serve every message to Foxglove as it flies (default {LIVE_DEFAULT}; needs "
+        "foxglove-sdk; docs/live.md)",
     )
     p.set_defaults(func=cmd_run)
 

@@ -142,3 +142,9 @@ def find_run(run: str, output: str, user: str) -> RunBus:
         ) from exc
     except ValueError as exc:
         raise RunNotFoundError(str(exc)) from exc
+
+
+def run_folder(run: str, output: str) -> Path:
+    """The run folder ``run`` names (a folder, or a run name under ``output``);
+    ``RunNotFoundError`` when there is none."""
+    return _folder(run, output)

@@ -78,8 +78,10 @@ class Launcher:
         out_root: str | None = None,
         quiet: bool = False,
         folder_mode: int | None = None,
+        live: str | None = None,
     ) -> None:
         self.dep = dep
+        self.live = live  # HOST:PORT the monitor serves the live view on (services.ground.live)
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -128,6 +130,7 @@ class Launcher:
             "--out",
             str(self.out),
             *(["--join"] if join else []),
+            *(["--live", self.live] if name == "monitor" and self.live else []),
             *credentials.service_arguments(self.dep, self.out, name),
         ]
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
@@ -264,6 +267,9 @@ class Launcher:
         # the monitor first, and the others at once behind it: a service declares itself
         # alive, and publishes, only once it sees the monitor (services.flight.runtime), so
         # that the recording has everything from the first message on
+        if self.live:
+            self.say(f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
+                     "WebSocket; docs/live.md)")  # fmt: skip
         for name in first:
             self.start(name)
         if (status := self._await(session, first)) is not None:

@@ -33,7 +33,9 @@ before the final clock; what arrives within ``FINAL_GRACE`` s after the last ser
 is still recorded. SIGTERM before that closes the recording and writes a partial report
 (``"completed": false``), also exit 0.
 
-Live status: ``services.ground.status``, refreshed every ``DRAW_PERIOD`` s.
+Live status: ``services.ground.status``, refreshed every ``DRAW_PERIOD`` s.  With ``--live
+HOST:PORT`` (``ddvi run --live``) every message recorded is also served to Foxglove
+(``services.ground.live``), after it is recorded and never in its way.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ import os
 # BLAS threads would compete with the flight services for the cores
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import argparse
+import functools
 import logging
 import math
 import queue
@@ -56,7 +60,9 @@ import zenoh
 
 from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards
 from services.flight.runtime import ServiceContext, run_service
-from services.ground.recording import RECORDING, Recorder
+from services.ground.live import LiveServer, live_server
+from services.ground.live_address import parse_address
+from services.ground.recording import RECORDING, TIMELINE, Recorder
 from services.ground.report import warm_up, write_report
 from services.ground.rundata import RunData
 from services.ground.status import Status
@@ -116,6 +122,7 @@ class Monitor:
         self.ever_alive: set[str] = set()
         self.others = [s for s in ctx.deployment.services if s != ctx.name]
         self.recorder: Recorder | None = None
+        self.live: LiveServer | None = None  # the live view, fed after the recorder
 
     def open_recording(self) -> None:
         dep = self.ctx.deployment
@@ -126,6 +133,7 @@ class Monitor:
             "orbit_period_s": repr(self.data.period),
             "started_ns": str(time.time_ns()),
             "services": ",".join(dep.services),
+            **TIMELINE,
         }
         attach = Path(dep.path) if dep.path else None
         self.recorder = Recorder(Path(self.ctx.out) / RECORDING, meta, attach)
@@ -143,6 +151,8 @@ class Monitor:
                 self.alive.discard(name)
             rec.alive(name, bool(value), recv_ns, self.data.sim_t)
             self.counters["recorded"] = rec.messages
+            if self.live is not None:
+                self.live.alive(name, bool(value), self.data.sim_t)
             return
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
         try:
@@ -163,6 +173,8 @@ class Monitor:
         if n <= 10 or n % 1000 == 0:
             log.warning("rejected %s (%s, #%d): %s", key, err.reason, n, err)
         self.recorder.rejected(topic, key, value, err, recv_ns, self.data.sim_t)
+        if self.live is not None:
+            self.live.rejected(topic, key, value, err, self.data.sim_t)
         self.counters["recorded"] = self.recorder.messages
 
     def handle_message(self, topic: str, key: str, value: bytes, recv_ns: int) -> None:
@@ -176,6 +188,8 @@ class Monitor:
             self.reject(topic, key, value, err, recv_ns)
             return
         rec.message(topic, msg, recv_ns)  # everything received is recorded
+        if self.live is not None:
+            self.live.message(topic, msg)
         if msg.schema == "clock" and msg.src != TIME_MASTER:
             n = self.counters["refused.clock"] = self.counters["refused.clock"] + 1
             if n <= 10 or n % 1000 == 0:
@@ -425,23 +439,40 @@ def log_to_file_too() -> None:
     root.addHandler(handler)
 
 
-def main(ctx: ServiceContext) -> int:
-    """Record the run until it ends or is stopped, then write its report."""
+def main(ctx: ServiceContext, live: str | None = None) -> int:
+    """Record the run until it ends or is stopped, then write its report; with ``live``
+    (HOST:PORT), serve it live too."""
     try:
-        return _main(ctx)
+        return _main(ctx, live)
     except Exception:
         log.exception("the monitor failed")  # into its log file, not the terminal alone
         raise
 
 
-def _main(ctx: ServiceContext) -> int:
+def _open_live(ctx: ServiceContext, address: str) -> LiveServer | None:
+    """The live view on ``address``, or None (logged) when it cannot serve: the recording goes
+    on without it."""
+    try:
+        server = live_server(parse_address(address), ctx.deployment, ctx.run)
+    except Exception:
+        log.exception("the live view on %s is not served", address)
+        return None
+    log.info("live view on %s", address)
+    return server
+
+
+def _main(ctx: ServiceContext, live_address: str | None = None) -> int:
     inbox: Inbox = queue.SimpleQueue()
     # Subscribe before anything else: the launcher starts the other services once it sees
     # this process alive.
     subs = _subscribe(ctx.bus.session, ctx.run, inbox, ctx.bus.budget)
     os.nice(NICENESS)  # this thread and those it starts later; not the callback's, started
+    # the live view's threads are started here, so they yield to the flight too; before the
+    # token, so that it serves once the launcher sees the monitor
+    live = _open_live(ctx, live_address) if live_address else None
     ctx.ready()
     mon = Monitor(ctx)
+    mon.live = live
     status: Status | None = None
     completed = False
     # the report's imports, on a thread once the mission flies; joined before the report
@@ -455,6 +486,8 @@ def _main(ctx: ServiceContext) -> int:
         _final_stats(ctx, mon, inbox)
     finally:
         _close(subs, mon, inbox, status)
+        if live is not None:
+            live.close()
     if warming.ident is not None:
         warming.join()
     return _report(ctx, mon, completed)
@@ -467,4 +500,8 @@ if __name__ == "__main__":
         format="%(asctime)s monitor %(levelname)s %(message)s",
     )
     log_to_file_too()
-    sys.exit(run_service(main, "monitor"))
+    # --live HOST:PORT is the monitor's own argument; the rest are every service's
+    options = argparse.ArgumentParser(add_help=False)
+    options.add_argument("--live")
+    known, rest = options.parse_known_args()
+    sys.exit(run_service(functools.partial(main, live=known.live), "monitor", rest))

@@ -4,14 +4,16 @@
 
     <topic>            one channel per topic (and schema), message_encoding "json": the wire
                        message as JSON {"schema", "version", "seq", "t", "src", "body"} with a
-                       jsonschema per message schema (``message_json_schema``); log_time =
-                       receive wall time (ns since the epoch), publish_time = simulation time t
-                       (ns)
+                       jsonschema per message schema (``message_json_schema``)
     rejected/<topic>   payloads that do not decode: {"key", "reason", "error", "size",
-                       "payload_b64", "truncated"}; publish_time = the latest simulation time
+                       "payload_b64", "truncated"}
     alive/<service>    liveliness changes {"service", "alive"} (a service came up or went away)
 
-The metadata record ``ddvi`` names the run, and the deployment file is attached.
+Every record's log_time is simulation time (ns from the mission's start: a message's own t, or
+the latest simulation time for a rejected payload or a liveliness change), so that a viewer's
+timeline spans the mission flown; publish_time is the monitor's receive wall time (ns since the
+epoch).  The metadata record ``ddvi`` names the run and says so (``TIMELINE``), and the
+deployment file is attached.
 ``read_recording`` reads a file back, also one cut short (no footer) by a kill -9.
 """
 
@@ -51,6 +53,9 @@ RECORDING = "recording.mcap"
 """The recording's file name in the run folder."""
 MAX_RAW = 64 * 1024  # bytes of a rejected payload kept in the recording
 CHUNK_SIZE = 256 * 1024
+TIMELINE = {"log_time": "simulation", "publish_time": "receive_wall"}
+"""The ``ddvi`` metadata keys that say what a recording's two timestamps are (a recording
+without them has log_time = receive wall time and publish_time = simulation time)."""
 
 _MAX_NS = 2**64 - 1
 
@@ -137,6 +142,30 @@ ALIVE_SCHEMA = {
 }
 
 
+def message_record(msg: Message) -> dict[str, Any]:
+    """A decoded bus message as recorded (and served live): the wire message as JSON."""
+    return {
+        "schema": msg.schema,
+        "version": msg.version,
+        "seq": msg.seq,
+        "t": msg.t,
+        "src": msg.src,
+        "body": msg.body,  # validated: finite float64 arrays, which orjson writes as lists
+    }
+
+
+def rejected_record(key: str, payload: bytes, err: MessageError) -> dict[str, Any]:
+    """A payload that did not decode as recorded: why, and its first ``MAX_RAW`` bytes."""
+    return {
+        "key": key,
+        "reason": err.reason,
+        "error": str(err)[:2000],
+        "size": len(payload),
+        "payload_b64": base64.b64encode(payload[:MAX_RAW]).decode(),
+        "truncated": len(payload) > MAX_RAW,
+    }
+
+
 class Recorder:
     """An MCAP file of JSON channels, flushed on demand, closed exactly once."""
 
@@ -184,44 +213,30 @@ class Recorder:
         seq: int = 0,
     ) -> None:
         """Write ``data`` as JSON on channel ``topic`` (registered with its schema on first
-        use); ``log_ns``: receive wall time, ``pub_ns``: simulation time, both ns."""
+        use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns."""
         cid = self._channel(topic, schema_name, schema)
         payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
         self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
         self.messages += 1
 
-    def message(self, topic: str, msg: Message, log_ns: int) -> None:
-        """Record a decoded bus message received at wall time ``log_ns``."""
-        data = {
-            "schema": msg.schema,
-            "version": msg.version,
-            "seq": msg.seq,
-            "t": msg.t,
-            "src": msg.src,
-            "body": msg.body,  # validated: finite float64 arrays, which orjson writes as lists
-        }
+    def message(self, topic: str, msg: Message, recv_ns: int) -> None:
+        """Record a decoded bus message received at wall time ``recv_ns``."""
         schema = _recorded_schema(msg.schema)
-        self.write(topic, f"ddvi.{msg.schema}", schema, data, log_ns, ns(msg.t), msg.seq)
+        data = message_record(msg)
+        self.write(topic, f"ddvi.{msg.schema}", schema, data, ns(msg.t), recv_ns, msg.seq)
 
     def rejected(
-        self, topic: str, key: str, payload: bytes, err: MessageError, log_ns: int, t: float
+        self, topic: str, key: str, payload: bytes, err: MessageError, recv_ns: int, t: float
     ) -> None:
         """Record a payload that did not decode (its first ``MAX_RAW`` bytes), at the latest
         simulation time ``t``."""
-        data = {
-            "key": key,
-            "reason": err.reason,
-            "error": str(err)[:2000],
-            "size": len(payload),
-            "payload_b64": base64.b64encode(payload[:MAX_RAW]).decode(),
-            "truncated": len(payload) > MAX_RAW,
-        }
-        self.write(f"rejected/{topic}", "ddvi.rejected", REJECTED_SCHEMA, data, log_ns, ns(t))
+        data = rejected_record(key, payload, err)
+        self.write(f"rejected/{topic}", "ddvi.rejected", REJECTED_SCHEMA, data, ns(t), recv_ns)
 
-    def alive(self, service: str, alive: bool, log_ns: int, t: float) -> None:
+    def alive(self, service: str, alive: bool, recv_ns: int, t: float) -> None:
         """Record that ``service``'s liveliness token appeared (alive) or went away."""
         data = {"service": service, "alive": alive}
-        self.write(topics.alive_topic(service), "ddvi.alive", ALIVE_SCHEMA, data, log_ns, ns(t))
+        self.write(topics.alive_topic(service), "ddvi.alive", ALIVE_SCHEMA, data, ns(t), recv_ns)
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS (what a kill -9 cannot lose)."""

@@ -17,6 +17,7 @@ from typing import Any
 from services.bus import SEQUENCE_REASONS, SequenceGuards
 from services.config import Deployment
 from services.ground.outcome import TIME_MASTER
+from services.ground.recording import TIMELINE
 from services.ground.report import write_report
 from services.ground.rundata import RunData
 from services.interface import (
@@ -68,6 +69,7 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
     guards = SequenceGuards()
     counters = _counters()
     alive = topics.alive_topic("")
+    wall = _receive_wall_time(records)
     for m in records.messages:
         channel = records.channels.get(m.channel_id)
         if channel is None:
@@ -76,7 +78,7 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
         if channel.topic.startswith(alive):
             continue
         counters["received"] += 1
-        data.seen(m.log_time)
+        data.seen(getattr(m, wall))
         body = json.loads(m.data)
         if channel.topic.startswith("rejected/"):
             counters["rejected"] += 1
@@ -110,6 +112,13 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
             + ".\n"
         )
     return summary
+
+
+def _receive_wall_time(records: Any) -> str:
+    """The message field that holds the receive wall time: publish_time in a recording whose
+    metadata says so (``recording.TIMELINE``), log_time in one made before."""
+    meta = next((dict(m.metadata) for m in records.metadata if m.name == "ddvi"), {})
+    return "publish_time" if meta.get("publish_time") == TIMELINE["publish_time"] else "log_time"
 
 
 def _plain(value: Any) -> Any:

@@ -10,7 +10,8 @@ its hub from the folder's ``bus.json`` and, on a secure bus, the observer's cred
 subscribe-only user) from its ``security/`` folder; TOPICS (a topic pattern such as
 ``ctrl/*/status``, or a full ``ddvi/<run>/...`` key expression) defaults to every topic; a
 pattern that matches no topic of the topology is refused.
-``--hub`` taps an insecure bus directly.  A sample that holds a batch prints one line per
+``--hub`` taps an insecure bus directly; ``--live`` serves the messages to Foxglove instead
+(``services.ground.live_tap``).  A sample that holds a batch prints one line per
 message; one that does not decode prints why it is rejected.  The tap is a plain zenoh
 subscriber: it records nothing and keeps no state.
 """
@@ -33,6 +34,7 @@ import zenoh
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, error_text, open_session
 from services.bus.security import OBSERVER
 from services.ground.credentials import RunNotFoundError, find_run
+from services.ground.live_address import LIVE_DEFAULT
 from services.interface import TOPOLOGY, MessageError, decode, unpack_batch
 
 
@@ -50,6 +52,14 @@ def add_monitor_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser
     p.add_argument("--hub", help="an insecure bus's endpoint to connect to (instead of --run)")
     p.add_argument("--count", type=int, default=0, help="stop after N messages (0: no limit)")
     p.add_argument("--seconds", type=float, default=0.0, help="stop after S s (0: no limit)")
+    p.add_argument(
+        "--live",
+        nargs="?",
+        const=LIVE_DEFAULT,
+        metavar="HOST:PORT",
+        help=f"serve the messages to Foxglove instead of printing them (default {LIVE_DEFAULT}; "
+        "needs --run and foxglove-sdk; docs/live.md)",
+    )
     return p
 
 
@@ -138,6 +148,10 @@ def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None 
     """``ddvi monitor [KEYEXPR] {--run RUN | --hub H} [--count N] [--seconds S]``: print each
     message on the bus as one line until Ctrl-C, N messages or S seconds. Returns 0; 2 for no
     bus named, 1 for a bus that refuses or cannot be reached."""
+    if getattr(args, "live", None) is not None:
+        from services.ground.live_tap import serve_live
+
+        return serve_live(args)
     emit = out or (lambda line: print(line, flush=True))
     try:
         settings, keyexpr = _tap_settings(args)

@@ -14,6 +14,7 @@ names every kind of participant.  ``python -m services.interface.reference`` ren
 from __future__ import annotations
 
 import functools
+import itertools
 import re
 from dataclasses import dataclass
 
@@ -323,6 +324,19 @@ def topics_published_by(service: str) -> tuple[str, ...]:
 def topics_subscribed_by(service: str) -> tuple[str, ...]:
     """The topics ``service`` subscribes, as key expressions below ``ddvi/<run>/``."""
     return _keys(service, "subscribers")
+
+
+def concrete_topics(names: dict[str, list[str]]) -> dict[str, str]:
+    """Every TOPOLOGY topic with its placeholders filled in every way ``names`` allows
+    (placeholder -> the names it stands for, e.g. ``{"craft": ["chief", "lqr"], "sc": ["lqr"],
+    "service": [...]}``), and the schema it carries; a topic with a placeholder ``names`` lacks
+    is left out."""
+    out: dict[str, str] = {}
+    for route in TOPOLOGY:
+        keys = _PLACEHOLDER.findall(route.topic)
+        for values in itertools.product(*(names.get(k, []) for k in keys)):
+            out[_fill(route.topic, dict(zip(keys, values, strict=True)))] = route.schema
+    return out
 
 
 @functools.lru_cache(maxsize=256)

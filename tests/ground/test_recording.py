@@ -36,7 +36,7 @@ def test_a_recording_reads_back_message_rejection_and_liveliness(tmp_path: Path)
     }
     msg = decode(encode("nav", body, seq=4, t=12.5, src="nav-alpha"), "nav")
     rec = Recorder(tmp_path / "recording.mcap", {"run": "r"}, attachment=None)
-    rec.message(topics.nav_state_topic("alpha"), msg, log_ns=10**18)
+    rec.message(topics.nav_state_topic("alpha"), msg, recv_ns=10**18)
     rec.rejected("junk", "ddvi/r/junk", b"\x00\x01", MessageError("malformed", "bad"), 2, 12.5)
     rec.alive("nav-alpha", False, 3, 12.5)
     rec.close()
@@ -44,7 +44,10 @@ def test_a_recording_reads_back_message_rejection_and_liveliness(tmp_path: Path)
     messages, complete = read_recording(tmp_path / "recording.mcap")
     assert complete and rec.messages == 3
     nav, rejected, alive = messages
-    assert (nav.topic, nav.schema, nav.publish_time) == ("nav/alpha/state", "ddvi.nav", ns(12.5))
+    assert (nav.topic, nav.schema) == ("nav/alpha/state", "ddvi.nav")
+    # the timeline is simulation time; the receive wall time is the publish time
+    assert (nav.log_time, nav.publish_time) == (ns(12.5), 10**18)
+    assert (rejected.log_time, rejected.publish_time) == (ns(12.5), 2)
     assert nav.data["body"]["x_hill"] == list(range(6)) and nav.data["seq"] == 4
     assert rejected.topic == "rejected/junk" and rejected.data["reason"] == "malformed"
     assert rejected.data["payload_b64"] == "AAE=" and rejected.data["truncated"] is False
@@ -77,3 +80,18 @@ def test_a_recorded_message_of_an_older_version_is_upgraded_on_replay() -> None:
            "body": {"sc": "alpha", "sigma": [0.0, 0.0, 0.1], "for_t": 10.0}}  # fmt: skip
     assert _message("cmd/alpha/att", cmd, counters) is None  # an old one with no upgrade
     assert counters["rejected"] == 4 and counters["rejected.version"] == 2
+
+
+def test_replay_reads_the_receive_wall_time_where_the_recording_keeps_it() -> None:
+    """A recording whose metadata says its timeline is simulation time keeps the receive wall
+    time in publish_time; one made before keeps it in log_time."""
+    from mcap.records import Metadata
+
+    from services.ground.recording import TIMELINE
+    from services.ground.recover import Records
+    from services.ground.replay import _receive_wall_time
+
+    now = Records(metadata=[Metadata(name="ddvi", metadata={"run": "r", **TIMELINE})])
+    before = Records(metadata=[Metadata(name="ddvi", metadata={"run": "r"})])
+    assert _receive_wall_time(now) == "publish_time"
+    assert _receive_wall_time(before) == "log_time"

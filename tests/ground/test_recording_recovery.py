@@ -38,12 +38,12 @@ def _cut_recording(tmp_path: Path, flushed: int, unflushed: int) -> Path:
     live = tmp_path / "live"
     rec = Recorder(live / RECORDING, {"run": "cut-1", "deployment": str(dep)}, attachment=dep)
     for k in range(flushed):
-        rec.message(topics.CLOCK, _clock(k), log_ns=10**18 + k)
+        rec.message(topics.CLOCK, _clock(k), recv_ns=10**18 + k)
         if k % 100 == 99:
             rec.flush()
     rec.flush()
     for k in range(flushed, flushed + unflushed):
-        rec.message(topics.CLOCK, _clock(k), log_ns=10**18 + k)
+        rec.message(topics.CLOCK, _clock(k), recv_ns=10**18 + k)
     rec._file.flush()  # what the OS holds: the open chunk is in the writer's buffer only
     folder = tmp_path / "run"
     folder.mkdir()
@@ -92,8 +92,8 @@ def test_a_clock_from_anyone_but_the_environment_is_not_obeyed(tmp_path: Path) -
     folder = tmp_path / "run"
     rec = Recorder(folder / RECORDING, {"run": "cut-1", "deployment": str(dep)}, attachment=dep)
     for k in range(10):
-        rec.message(topics.CLOCK, _clock(k), log_ns=k)
-    rec.message(topics.CLOCK, _clock(10**6, src="intruder", final=True), log_ns=11)
+        rec.message(topics.CLOCK, _clock(k), recv_ns=k)
+    rec.message(topics.CLOCK, _clock(10**6, src="intruder", final=True), recv_ns=11)
     rec.close()
     got = recover(folder)
     assert got.complete and got.messages == 11

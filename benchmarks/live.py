@@ -1,0 +1,174 @@
+"""The live view's cost: the default mission through ``ddvi run --live`` with one client
+(``benchmarks.foxglove_client``, reading as Foxglove would) subscribed to every channel, and
+with one subscribed to the channels ``docs/foxglove-layout.json`` shows (what Foxglove with
+that layout subscribes to), against the same mission without ``--live``, alternated, two runs
+each (``--quick``: 4 orbits, one run each).  Whole-run wall time, the lock-step loop (the
+first to the last clock the monitor recorded, by receive wall time) and the CPU of the run's
+processes; the client's CPU and messages; whether the live runs' final errors are the others'
+(the live view must not touch the flight).
+
+    python -m benchmarks.live [--quick] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.foxglove_client import FoxgloveClient
+from benchmarks.mission import _clock_span, _row
+from services.config import read_table, write_deployment
+from services.ground.launcher import free_port
+from services.ground.recording import RECORDING
+
+TARGET = "≤ 1.10"
+
+
+def _loop_s(path: Path) -> float:
+    """Wall seconds between the first and the last clock message the monitor received."""
+    first, last = _clock_span(path)
+    return (last - first) / 1e9
+
+
+LAYOUT = Path(__file__).resolve().parents[1] / "docs" / "foxglove-layout.json"
+EVERY = "every channel"
+SHOWN = "the layout's channels"
+
+
+def layout_topics(path: Path = LAYOUT) -> set[str]:
+    """The topics a Foxglove layout's panels read (each message path's topic)."""
+    found: set[str] = set()
+
+    def walk(node: Any) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if key in ("value", "topicPath") and isinstance(value, str):
+                    found.add(value.partition(".")[0])
+                else:
+                    walk(value)
+        elif isinstance(node, list):
+            for item in node:
+                walk(item)
+
+    walk(json.loads(path.read_text())["configById"])
+    return found
+
+
+def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
+    """``ddvi run path --quiet`` (with ``--live`` on a free port and one client reading
+    ``live``: EVERY or SHOWN channel): wall time, loop, CPU, summary and what the client
+    received."""
+    port = free_port()
+    cmd = [sys.executable, "-m", "services.cli", "run", str(path), "--quiet", "--output", str(out)]
+    cmd += ["--live", f"127.0.0.1:{port}"] if live else []
+    wanted = layout_topics() if live == SHOWN else None
+    t0, cpu0, tree0 = time.perf_counter(), time.process_time(), _children_cpu()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    client = (
+        FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=120, keep=False, topics=wanted)
+        if live
+        else None
+    )
+    stdout, stderr = proc.communicate()
+    wall = time.perf_counter() - t0
+    run_cpu = _children_cpu() - tree0  # the launcher and every service (it waits for them)
+    if proc.returncode != 0:
+        raise RuntimeError(f"ddvi run {path} failed ({proc.returncode}): {stderr[-2000:]}")
+    if client is not None:
+        client.wait_closed(30)
+    client_cpu = time.process_time() - cpu0  # this process: the client's reading
+    folder = Path(stdout.strip().splitlines()[-1])
+    summary = json.loads((folder / "summary.json").read_text())
+    return {
+        "wall_s": wall,
+        "loop_s": _loop_s(folder / RECORDING),
+        "errors": {d: s["final_along_track_error_m"] for d, s in summary["deputies"].items()},
+        "recorded": summary["messages"]["recorded"],
+        "received": sum(client.counts.values()) if client is not None else 0,
+        "run_cpu_s": run_cpu,
+        "client_cpu_s": client_cpu,
+    }
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user and system) of this process's waited-for descendants so far."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def bench_live(quick: bool = False) -> list[dict[str, Any]]:
+    """The default mission with ``--live`` and one client against without, alternated."""
+    table = read_table(None)
+    if quick:
+        table["run"]["orbits"] = 4.0
+    runs: dict[str | None, list[dict[str, Any]]] = {None: [], EVERY: [], SHOWN: []}
+    with tempfile.TemporaryDirectory(prefix="ddvi-bench-live-") as tmp:
+        path = write_deployment(table, Path(tmp), "mission")
+        for _ in range(1 if quick else 2):
+            for live in runs:
+                runs[live].append(run_once(path, Path(tmp) / "runs", live))
+    rows = []
+    for live in (EVERY, SHOWN):
+        rows += _rows(table["run"]["orbits"], live, runs[live], runs[None])
+    everything = [r for rs in runs.values() for r in rs]
+    same = all(r["errors"] == runs[None][0]["errors"] for r in everything)
+    rows.append(_row(f"final along-track errors identical with and without: {same}", "m",
+                     runs[EVERY][-1]["errors"].get("ddvi", float("nan")),
+                     runs[None][0]["errors"].get("ddvi", float("nan")), "without --live",
+                     1.0, bench="live"))  # fmt: skip
+    return rows
+
+
+def _rows(
+    orbits: float, what: str, live: list[dict[str, Any]], without: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    rows = []
+    for key, figure in (("wall_s", "whole run"), ("loop_s", "lock-step loop"),
+                        ("run_cpu_s", "CPU of the run's processes")):  # fmt: skip
+        project = statistics.mean(r[key] for r in live)
+        baseline = statistics.mean(r[key] for r in without)
+        each = (
+            ", ".join(f"{r[key]:.1f}" for r in live)
+            + " against "
+            + ", ".join(f"{r[key]:.1f}" for r in without)
+        )
+        rows.append(_row(f"{orbits:g}-orbit mission, {figure}, --live, a client of {what} "
+                         f"(runs: {each})", "s", project, baseline, "without --live",
+                         project / baseline, TARGET, bench="live"))  # fmt: skip
+    client_cpu = statistics.mean(r["client_cpu_s"] for r in live)
+    run_cpu = statistics.mean(r["run_cpu_s"] for r in without)
+    rows.append(_row(f"CPU of the client of {what} (this process)", "s", client_cpu, run_cpu,
+                     "the run's CPU without --live", client_cpu / run_cpu,
+                     bench="live"))  # fmt: skip
+    last = live[-1]
+    rows.append(_row(f"messages the client of {what} received", "count", last["received"],
+                     last["recorded"], "messages recorded", last["received"] / last["recorded"],
+                     bench="live"))  # fmt: skip
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.live", description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="4 orbits, one run each")
+    parser.add_argument("--json", action="store_true", help="the rows as JSON on stdout")
+    args = parser.parse_args(argv)
+    rows = bench_live(args.quick)
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        for r in rows:
+            print(f"{r['metric']}: {r['project']:.4g} {r['unit']} against {r['baseline']:.4g} "
+                  f"({r['baseline_name']}), ratio {r['cost_ratio']:.3f} {r['target']}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
