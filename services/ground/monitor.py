@@ -293,6 +293,7 @@ class Ending:
         self.final_deadline: float | None = None
         self.grace_deadline: float | None = None
         self.stop_deadline: float | None = None
+        self.waited_for: dict[str, int] = {}  # unrecorded messages the ending waited for
 
     def check(self, mon: Monitor, stop: bool, idle: bool, now: float) -> bool | None:
         """None to go on recording; else whether the mission completed."""
@@ -303,8 +304,15 @@ class Ending:
             if not mon.pending() and self.grace_deadline is None:
                 self.grace_deadline = now + FINAL_GRACE  # stragglers racing the token drops
             graced = self.grace_deadline is not None and now >= self.grace_deadline
-            if graced and mon.data.unrecorded():
+            if graced and (unrecorded := mon.data.unrecorded()):
                 graced = False  # published and not here yet: wait for it, up to FINAL_WAIT
+                if not self.waited_for:
+                    log.info("waiting for what was published and has not come: %s", ", ".join(
+                        f"{n} from {s}" for s, n in sorted(unrecorded.items())))  # fmt: skip
+                self.waited_for = unrecorded
+            elif graced and self.waited_for:
+                log.info("what was awaited came %.2f s after the last token went",
+                         now - (self.grace_deadline or now) + FINAL_GRACE)  # fmt: skip
             if graced or now >= self.final_deadline:
                 if missing := mon.pending():
                     log.warning("no final stats from %s after %.0f s", missing, FINAL_WAIT)

@@ -177,10 +177,10 @@ def test_a_regenerated_report_counts_every_record_once(tmp_path: Path) -> None:
     dep.write_text(DEPLOYMENT)
     folder = tmp_path / "run"
     rec = Recorder(folder / RECORDING, {"run": "cut-1", "deployment": str(dep)}, attachment=dep)
-    rec.alive("nav-lqr", True, log_ns=1, t=0.0)
+    rec.alive("nav-lqr", True, recv_ns=1, t=0.0)
     for k in range(10):
-        rec.message(topics.CLOCK, _clock(k), log_ns=2 + k)
-    rec.alive("nav-lqr", False, log_ns=20, t=90.0)
+        rec.message(topics.CLOCK, _clock(k), recv_ns=2 + k)
+    rec.alive("nav-lqr", False, recv_ns=20, t=90.0)
     rec.close()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
