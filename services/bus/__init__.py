@@ -20,7 +20,7 @@ from services.bus.links import (
     rule_latency,
     select_rule,
 )
-from services.bus.liveliness import wait_for_alive, watch_alive
+from services.bus.liveliness import wait_for_alive, wait_for_gone, watch_alive
 from services.bus.session import (
     DEFAULT_HUB,
     EPHEMERAL_LOOPBACK,
@@ -56,6 +56,7 @@ __all__ = [
     "rule_latency",
     "select_rule",
     "wait_for_alive",
+    "wait_for_gone",
     "watch_alive",
     "zenoh_config",
 ]

@@ -507,6 +507,16 @@ class Bus:
             key = self.prefix + alive_topic(self.service)
             self._token = self.session.liveliness().declare_token(key)
 
+    def withdraw(self) -> None:
+        """Undeclare the liveliness token alone (idempotent): the service is done, and its
+        publishers (their keys) stay declared for what it has put and zenoh has not yet sent.
+        zenoh sends declarations ahead of queued data, so a key undeclared right after a put
+        can reach the router first, which then drops the put it can no longer resolve."""
+        with self._pub_lock:
+            token, self._token = self._token, None
+        if token is not None:
+            token.undeclare()
+
     def close(self) -> None:
         """Undeclare subscribers, publishers and the liveliness token (idempotent)."""
         with self._pub_lock:

@@ -66,3 +66,23 @@ def wait_for_alive(
             return wanted & alive
     finally:
         subscriber.undeclare()
+
+
+def wait_for_gone(session: zenoh.Session, run: str, service: str, timeout: float) -> bool:
+    """Wait until ``service``'s liveliness token is gone (or was never there), at most
+    ``timeout`` s; whether it is gone."""
+    gone = threading.Event()
+
+    def on_change(_name: str, up: bool) -> None:
+        if not up:
+            gone.set()
+
+    subscriber = watch_alive(session, run, service, on_change)  # before the query: no gap
+    try:
+        key = key_prefix(run) + alive_topic(service)
+        replies = session.liveliness().get(key, timeout=min(timeout, 2.0))
+        if not any(reply.ok is not None for reply in replies):
+            return True
+        return gone.wait(timeout)
+    finally:
+        subscriber.undeclare()

@@ -42,6 +42,7 @@ from services.bus import (
     impairs_truth,
     open_session,
     wait_for_alive,
+    wait_for_gone,
 )
 from services.bus.security import Credentials, load_credentials
 from services.config import Deployment, DeploymentError, load_deployment
@@ -58,6 +59,9 @@ MONITOR_WAIT = 10.0
 ``startup_timeout`` if longer: the launcher starts the monitor and the services together), so
 that what it publishes first is recorded: a message put before this session knows the
 monitor's subscription goes nowhere."""
+OUTLAST_MONITOR = 30.0
+"""Wall seconds a finished service keeps its session for the monitor to close the recording
+(the monitor's final wait, its own stats and its bounded drain of what is queued)."""
 
 
 @dataclass
@@ -259,6 +263,11 @@ def run_service(
             bus.subscribe(fault_topic("link"), ctx.on_link_fault, expected_schema="fault")
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready
+            bus.withdraw()  # done: the monitor and the launcher see its token go
+            if status == 0 and args.name != "monitor" and not stop.is_set():
+                # keep the keys of what it has put until the recording is closed (the
+                # monitor's token goes then): see Bus.withdraw
+                wait_for_gone(session, args.run, "monitor", OUTLAST_MONITOR)
             return status
         finally:
             bus.close()

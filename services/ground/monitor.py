@@ -494,6 +494,7 @@ def _main(ctx: ServiceContext, live_address: str | None = None) -> int:
         _final_stats(ctx, mon, inbox)
     finally:
         _close(subs, mon, inbox, status)
+        ctx.bus.withdraw()  # the recording is closed: the services that outlast it may go
         if live is not None:
             live.close()
     if warming.ident is not None:

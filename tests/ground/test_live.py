@@ -348,7 +348,7 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
         port = free_port()
         tap = subprocess.Popen(
             [sys.executable, "-m", "services.cli", "monitor", "--run", folder, "--live",
-             f"127.0.0.1:{port}"], stderr=subprocess.PIPE, text=True,
+             f"127.0.0.1:{port}"], stderr=(tmp_path / "tap.err").open("w"), text=True,
         )  # fmt: skip
         client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=60)
         _out, err = run.communicate(timeout=300)
@@ -356,7 +356,10 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
         # the final clock served: the tap heard the mission to its end
         assert wait_until(lambda: _final_clock_served(client), timeout=30)
         tap.send_signal(signal.SIGINT)
-        assert tap.wait(timeout=30) == 0
+        try:
+            assert tap.wait(timeout=30) == 0
+        except subprocess.TimeoutExpired:  # say what the tap said, and where it was
+            raise AssertionError((tmp_path / "tap.err").read_text()[-3000:]) from None
         assert client.wait_closed(30)
     finally:
         for proc in (run, tap):
