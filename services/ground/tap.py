@@ -23,9 +23,11 @@ import contextlib
 import json
 import queue
 import re
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -144,10 +146,36 @@ def _tap_settings(args: argparse.Namespace) -> tuple[BusSettings, str]:
     return settings, run_keyexpr("*", args.keyexpr)
 
 
+def _interrupt(_signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP end a tap in order (as KeyboardInterrupt), also when it
+    inherited them ignored (``ddvi monitor ... &`` in a script, which ignores SIGINT)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    stops = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    previous = {sig: signal.signal(sig, _interrupt) for sig in stops}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None = None) -> int:
     """``ddvi monitor [KEYEXPR] {--run RUN | --hub H} [--count N] [--seconds S]``: print each
     message on the bus as one line until Ctrl-C, N messages or S seconds. Returns 0; 2 for no
     bus named, 1 for a bus that refuses or cannot be reached."""
+    with stop_on_signals():
+        return _monitor(args, out)
+
+
+def _monitor(args: argparse.Namespace, out: Callable[[str], None] | None) -> int:
+    """What ``monitor_command`` does, its stop signals taken."""
     if getattr(args, "live", None) is not None:
         from services.ground.live_tap import serve_live
 
