@@ -307,8 +307,8 @@ class Ending:
             if graced and (unrecorded := mon.data.unrecorded()):
                 graced = False  # published and not here yet: wait for it, up to FINAL_WAIT
                 if not self.waited_for:
-                    log.info("waiting for what was published and has not come: %s", ", ".join(
-                        f"{n} from {s}" for s, n in sorted(unrecorded.items())))  # fmt: skip
+                    log.info("waiting for what was published and has not come: %s",
+                             _by_publisher(unrecorded))  # fmt: skip
                 self.waited_for = unrecorded
             elif graced and self.waited_for:
                 log.info("what was awaited came %.2f s after the last token went",
@@ -317,8 +317,7 @@ class Ending:
                 if missing := mon.pending():
                     log.warning("no final stats from %s after %.0f s", missing, FINAL_WAIT)
                 if unrecorded := mon.data.unrecorded():
-                    log.warning("published but never recorded: %s", ", ".join(
-                        f"{n} from {s}" for s, n in sorted(unrecorded.items())))  # fmt: skip
+                    log.warning("published but never recorded: %s", _by_publisher(unrecorded))
                 return True
         if stop:
             # Record what has already arrived (bounded), then stop.
@@ -328,6 +327,11 @@ class Ending:
             if idle or now >= self.stop_deadline:
                 return mon.data.final_seen
         return None
+
+
+def _by_publisher(counts: dict[str, int]) -> str:
+    """``{"nav-ddvi": 6}`` as "6 from nav-ddvi", publishers in order."""
+    return ", ".join(f"{n} from {s}" for s, n in sorted(counts.items()))
 
 
 def _take_batch(mon: Monitor, inbox: Inbox, first: Item) -> None:
