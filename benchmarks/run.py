@@ -54,21 +54,28 @@ def _fmt(value: float) -> str:
     return f"{value:.2e}"
 
 
-_RATIO_TARGET = re.compile(r"^\s*(<=|<|>=|>)\s*([0-9]*\.?[0-9]+)\s*x?\s*(?:;|$)")
+_TARGET = re.compile(r"^\s*(<=|<|>=|>)\s*([0-9]*\.?[0-9]+)\s*([A-Za-z/]*)\s*(?:;|$)")
 _COMPARE = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt}
 
 
 def verdict(row: dict[str, Any]) -> str | None:
     """ "met" or "missed" when the row's target bounds its cost ratio (it starts ``<= 1.3`` or
-    ``<= 2x;``), "missed" for a ratio not measured; None when the target bounds something
-    else (a gain error, a wall time) or there is none."""
-    match = _RATIO_TARGET.match(str(row.get("target", "")))
+    ``<= 2x;``) or its own figure in the row's unit (``< 2 s``, ``<= 350 MB``), "missed" for a
+    figure not measured; None when the target bounds something else (a gain error, another
+    unit) or there is none."""
+    match = _TARGET.match(str(row.get("target", "")))
     if match is None:
         return None
-    ratio = row.get("cost_ratio")
-    if not isinstance(ratio, int | float) or not math.isfinite(ratio):
+    unit = match.group(3)
+    if unit in ("", "x"):
+        value = row.get("cost_ratio")
+    elif unit == row.get("unit"):
+        value = row.get("project")
+    else:
+        return None
+    if not isinstance(value, int | float) or not math.isfinite(value):
         return "missed"
-    return "met" if _COMPARE[match.group(1)](ratio, float(match.group(2))) else "missed"
+    return "met" if _COMPARE[match.group(1)](value, float(match.group(2))) else "missed"
 
 
 def plain_json(value: Any) -> Any:

@@ -2,9 +2,10 @@
 
 The state is ``[x, y, z, xdot, ydot, zdot]`` (m, m/s) relative to the chief, x radial, y along
 track, z cross-track.  The filter propagates it with the Clohessy-Wiltshire (HCW) equations at
-the chief's mean motion n, discretised exactly (``scipy.linalg.expm``) over the sample
-interval, and updates it with a measurement of the whole state (relative position and
-velocity, as a relative GPS solution gives them) with white noise of known sigmas.
+the chief's mean motion n, discretised exactly over the sample interval (the closed-form
+transition, and Gauss-Legendre quadrature of it for the process noise), and updates it with a
+measurement of the whole state (relative position and velocity, as a relative GPS solution
+gives them) with white noise of known sigmas.
 
 It knows relative-orbit kinematics and nothing else: not the atmosphere, not the craft's areas
 or ballistic coefficients, not the commanded attitude.  What the HCW equations leave out, the
@@ -21,7 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg
+from numpy.polynomial.legendre import leggauss
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
@@ -59,23 +60,34 @@ def hcw_matrix(n: float) -> NDArray[np.float64]:
 
 
 def transition(n: float, dt: float) -> NDArray[np.float64]:
-    """The HCW state transition Phi (6, 6) over ``dt`` s: x(t + dt) = Phi x(t), exact."""
-    return scipy.linalg.expm(hcw_matrix(n) * dt)
+    """The HCW state transition Phi (6, 6) over ``dt`` s: x(t + dt) = Phi x(t), exact (the
+    Clohessy-Wiltshire solution in closed form, the flow of :func:`hcw_matrix`)."""
+    nt = n * dt
+    s, c = math.sin(nt), math.cos(nt)
+    Phi = np.zeros((6, 6))
+    Phi[0, 0], Phi[0, 3], Phi[0, 4] = 4.0 - 3.0 * c, s / n, 2.0 * (1.0 - c) / n
+    Phi[1, 0], Phi[1, 1] = 6.0 * (s - nt), 1.0
+    Phi[1, 3], Phi[1, 4] = 2.0 * (c - 1.0) / n, (4.0 * s - 3.0 * nt) / n
+    Phi[2, 2], Phi[2, 5] = c, s / n
+    Phi[3, 0], Phi[3, 3], Phi[3, 4] = 3.0 * n * s, c, 2.0 * s
+    Phi[4, 0], Phi[4, 3], Phi[4, 4] = 6.0 * n * (c - 1.0), -2.0 * s, 4.0 * c - 3.0
+    Phi[5, 2], Phi[5, 5] = -n * s, c
+    return Phi
 
 
 def process_noise(n: float, dt: float, q: float) -> NDArray[np.float64]:
     """The process noise covariance Qd (6, 6) over ``dt`` s of a white acceleration of power
-    spectral density ``q`` (m^2/s^3) on each axis, exact (Van Loan's method):
-    Qd = int_0^dt Phi(s) G q G' Phi(s)' ds with G = [0; I3] (6, 3)."""
-    A = hcw_matrix(n)
-    G = np.vstack([np.zeros((3, 3)), np.eye(3)])
-    M = np.zeros((12, 12))
-    M[:6, :6] = -A
-    M[:6, 6:] = q * (G @ G.T)
-    M[6:, 6:] = A.T
-    F = scipy.linalg.expm(M * dt)
-    Phi = F[6:, 6:].T
-    Qd = Phi @ F[:6, 6:]
+    spectral density ``q`` (m^2/s^3) on each axis:
+    Qd = int_0^dt Phi(s) G q G' Phi(s)' ds with G = [0; I3] (6, 3), by Gauss-Legendre
+    quadrature of the closed-form transition.  The integrand is a trigonometric polynomial
+    in n s; with a node per 0.1 rad of n dt (at least 8) the quadrature is exact to rounding."""
+    nodes = max(8, math.ceil(abs(n * dt) / 0.1) + 8)
+    x, w = leggauss(nodes)
+    Qd = np.zeros((6, 6))
+    for xi, wi in zip(0.5 * dt * (x + 1.0), 0.5 * dt * w, strict=True):
+        PhiG = transition(n, float(xi))[:, 3:]  # Phi(s) G
+        Qd += wi * (PhiG @ PhiG.T)
+    Qd *= q
     return 0.5 * (Qd + Qd.T)
 
 
@@ -84,6 +96,8 @@ def steady_state_covariance(Phi: ArrayLike, Qd: ArrayLike, R: ArrayLike) -> NDAr
     transition Phi (6, 6), process noise Qd (6, 6) and measurement noise R (6, 6) positive
     definite (the whole state measured): the prior P- solves the discrete Riccati equation,
     and P+ = P- - P- (P- + R)^-1 P-."""
+    import scipy.linalg  # here only: the navigation service never needs it (its import is costly)
+
     Phi, R = np.asarray(Phi, float), np.asarray(R, float)
     prior = scipy.linalg.solve_discrete_are(Phi.T, np.eye(6), np.asarray(Qd, float), R)
     return prior - prior @ np.linalg.solve(prior + R, prior)

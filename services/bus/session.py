@@ -106,6 +106,9 @@ def zenoh_config(settings: BusSettings) -> zenoh.Config:
     config.insert_json5("connect/endpoints", json.dumps(settings.connect))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true")
+    # Shared memory only pays for payloads of kilobytes (zenoh's threshold is 3 KB); every
+    # message here is smaller, and the segments and their threads cost each process 10-20 MB.
+    config.insert_json5("transport/shared_memory/enabled", "false")
     # Retry a not-yet-listening hub quickly, so start-up order does not matter.
     retry = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2.0}
     config.insert_json5("connect/retry", json.dumps(retry))

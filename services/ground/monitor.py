@@ -51,7 +51,6 @@ import logging
 import math
 import queue
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -63,7 +62,7 @@ from services.flight.runtime import ServiceContext, run_service
 from services.ground.live import LiveServer, live_server
 from services.ground.live_address import parse_address
 from services.ground.recording import RECORDING, TIMELINE, Recorder
-from services.ground.report import warm_up, write_report
+from services.ground.report import write_report
 from services.ground.rundata import RunData
 from services.ground.status import Status
 from services.interface import REASONS, MessageError, decode, schema_for_topic, topics, unpack_batch
@@ -346,12 +345,8 @@ def _take_batch(mon: Monitor, inbox: Inbox, first: Item) -> None:
         mon.handle(item)
 
 
-def _record(
-    ctx: ServiceContext, mon: Monitor, inbox: Inbox, status: Status, warming: threading.Thread
-) -> bool:
-    """Record until the run ends or a stop is requested; return whether it completed.
-    Starts ``warming`` once the mission flies (not during the services' start-up, which is
-    CPU-bound too)."""
+def _record(ctx: ServiceContext, mon: Monitor, inbox: Inbox, status: Status) -> bool:
+    """Record until the run ends or a stop is requested; return whether it completed."""
     assert mon.recorder is not None
     last_flush = last_draw = time.monotonic()
     ending = Ending()
@@ -362,8 +357,6 @@ def _record(
             item = None
         if item is not None:
             _take_batch(mon, inbox, item)
-            if mon.data.sim_t > 0.0 and warming.ident is None:
-                warming.start()
         now = time.monotonic()
         if now - last_flush >= FLUSH_PERIOD:
             mon.recorder.flush()
@@ -487,22 +480,18 @@ def _main(ctx: ServiceContext, live_address: str | None = None) -> int:
     mon.live = live
     status: Status | None = None
     completed = False
-    # the report's imports, on a thread once the mission flies; joined before the report
-    warming = threading.Thread(target=warm_up, name="report-warm-up", daemon=True)
     try:
         mon.open_recording()
         assert mon.recorder is not None
         status = Status(mon.data, sys.stderr.isatty())
         log.info("recording %s to %s", f"ddvi/{ctx.run}/**", mon.recorder.path)
-        completed = _record(ctx, mon, inbox, status, warming)
+        completed = _record(ctx, mon, inbox, status)
         _final_stats(ctx, mon, inbox)
     finally:
         _close(subs, mon, inbox, status)
         ctx.bus.withdraw()  # the recording is closed: the services that outlast it may go
         if live is not None:
             live.close()
-    if warming.ident is not None:
-        warming.join()
     return _report(ctx, mon, completed)
 
 

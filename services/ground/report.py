@@ -217,28 +217,6 @@ def _csv_cell(text: str) -> str:
     return text
 
 
-def warm_up() -> None:
-    """Import what ``write_report`` needs (matplotlib on Agg, scipy's linear algebra for the
-    LQR reference gains) and load the figures' font, ahead of time: the monitor runs this on a
-    thread while the mission flies, so that the report at the end does not pay their cold
-    start (seconds, on a machine the services keep busy).  Never raises: the report would then
-    pay it itself."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from ddvi_core import lqr, regulator  # noqa: F401  (scipy.linalg)
-
-        fig = plt.figure(figsize=(1, 1))
-        fig.text(0.5, 0.5, "0.1 x [m]")
-        fig.canvas.draw()
-        plt.close(fig)
-    except Exception:
-        log.exception("report warm-up failed (the report will import what it needs itself)")
-
-
 def _num(v: Any, fmt: str = ".3g") -> str:
     return "-" if v is None else format(v, fmt)
 

@@ -46,6 +46,15 @@ def test_a_ratio_with_a_target_gets_a_verdict() -> None:
     assert bench.verdict({"target": "> 2", "cost_ratio": 3.0}) == "met"
 
 
+def test_a_figure_with_a_target_in_its_unit_gets_a_verdict() -> None:
+    memory = {"unit": "MB", "project": 334.0, "cost_ratio": 3.5}
+    assert bench.verdict({**memory, "target": "<= 350 MB"}) == "met"
+    assert bench.verdict({**memory, "target": "<= 300 MB"}) == "missed"
+    assert bench.verdict({"unit": "s", "project": 2.58, "target": "< 2 s"}) == "missed"
+    assert bench.verdict({"unit": "s", "project": math.nan, "target": "< 2 s"}) == "missed"
+    assert bench.verdict({**memory, "target": "< 2 s"}) is None  # another unit
+
+
 def test_json_is_valid_and_a_value_not_measured_is_null(
     fake_benchmarks: None, capsys: pytest.CaptureFixture
 ) -> None:
