@@ -106,6 +106,10 @@ def zenoh_config(settings: BusSettings) -> zenoh.Config:
     config.insert_json5("connect/endpoints", json.dumps(settings.connect))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true")
+    if settings.mode == "router":
+        # a router's open() otherwise waits scouting's 0.5 s for peers to scout; with no
+        # multicast scouting and every service connecting to it, there is nothing to wait for
+        config.insert_json5("scouting/delay", "0")
     # Shared memory only pays for payloads of kilobytes (zenoh's threshold is 3 KB); every
     # message here is smaller, and the segments and their threads cost each process 10-20 MB.
     config.insert_json5("transport/shared_memory/enabled", "false")

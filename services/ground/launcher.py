@@ -1,8 +1,9 @@
 """The launcher: ``ddvi run [DEPLOYMENT]``.
 
 Reads a deployment, is the run's zenoh hub (the endpoint every service connects to), starts each
-service as its own OS process, waits for their liveliness tokens, starts the environment (the
-time master) last, waits for the mission to complete and the monitor to write its report, then
+service as its own OS process, all at once (the environment, the time master, flies once it
+sees every other service alive), waits for their liveliness tokens, waits for the mission to
+complete and the monitor to write its report, then
 stops everything (SIGTERM, then SIGKILL after a grace period): no orphan, no hang.
 
 Supervision: a service that dies before the mission ends is started again, into the running
@@ -262,26 +263,22 @@ class Launcher:
         return lifecycle.EXIT_FAILED
 
     def _fly(self, session: Any, started: float) -> int:
-        """Start the monitor, the flight services, then the environment, and supervise."""
+        """Start every service at once, the environment included, and supervise."""
         first = [s for s in self.dep.services if s != "environment"]
-        # the monitor first, and the others at once behind it: a service declares itself
-        # alive, and publishes, only once it sees the monitor (services.flight.runtime), so
-        # that the recording has everything from the first message on
+        # all at once: a service declares itself alive, and publishes, only once it sees the
+        # monitor (services.flight.runtime), so that the recording has everything from the
+        # first message on, and the environment flies once it sees every other service alive
         if self.live:
             self.say(f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
                      "WebSocket; docs/live.md)")  # fmt: skip
-        for name in first:
-            self.start(name)
-        if (status := self._await(session, first)) is not None:
-            return status
-        self.say(
-            f"{len(first)} services alive in {time.monotonic() - started:.1f} s; "
-            "starting the environment"
-        )
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
-            self.start("environment")
+            for name in [*first, "environment"]:
+                self.start(name)
+            if (status := self._await(session, first)) is not None:
+                return status
+            self.say(f"{len(first)} services alive in {time.monotonic() - started:.1f} s")
             return self._supervise(started, bus, faults)
 
     def _after_stop(self, status: int) -> int:

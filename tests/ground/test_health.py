@@ -17,6 +17,7 @@ import pytest
 
 from benchmarks.flood import DEPLOYMENT, readable
 from services.ground.recording import read_recording
+from tests.support import read_until_flying
 
 pytestmark = pytest.mark.integration
 
@@ -34,13 +35,17 @@ def _deployment(tmp: Path, command_deadline: float, hang_timeout: float) -> Path
 
 def _fly(dep: Path, root: Path, freeze: float = 0.0) -> tuple[int, str, Path]:
     """``ddvi run dep``; with ``freeze``, nav-lqr is stopped (SIGSTOP) a second after the
-    environment starts, for ``freeze`` s, then continued.  Its status, stderr and run folder."""
+    launcher says the services are alive (the environment then flies), for ``freeze`` s, then
+    continued.  Its status, stderr and run folder."""
     cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output", str(root)]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    said: list[bytes] = []
     try:
         if freeze:
-            nav = _service(proc, "nav-lqr", wait_for="environment")
+            assert proc.stderr is not None
+            said = read_until_flying(proc.stderr)  # the rest is read by communicate()
+            nav = _service(proc, "nav-lqr")
             time.sleep(1.0)
             nav.send_signal(signal.SIGSTOP)
             time.sleep(freeze)
@@ -51,18 +56,15 @@ def _fly(dep: Path, root: Path, freeze: float = 0.0) -> tuple[int, str, Path]:
         if proc.poll() is None:
             proc.kill()
     (out,) = [p.parent for p in root.glob("*/recording.mcap")]
-    return proc.returncode, err.decode(), out
+    return proc.returncode, b"".join([*said, err]).decode(), out
 
 
-def _service(proc: subprocess.Popen, name: str, wait_for: str) -> psutil.Process:
-    """The process of service ``name`` once ``wait_for`` runs too."""
-    deadline = time.monotonic() + 60.0
-    while time.monotonic() < deadline:
-        kids = {" ".join(k.cmdline()): k for k in psutil.Process(proc.pid).children()}
-        if any(f"--name {wait_for} " in c for c in kids):
-            return next(k for c, k in kids.items() if f"--name {name} " in c)
-        time.sleep(0.05)
-    raise AssertionError(f"{wait_for} did not start")
+def _service(proc: subprocess.Popen, name: str) -> psutil.Process:
+    """The process of service ``name``."""
+    kids = {" ".join(k.cmdline()): k for k in psutil.Process(proc.pid).children()}
+    found = [k for c, k in kids.items() if f"--name {name} " in c]
+    assert found, f"{name} is not running: {sorted(kids)}"
+    return found[0]
 
 
 def _deputies(out: Path) -> dict:

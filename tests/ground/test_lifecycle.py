@@ -15,7 +15,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from tests.support import wait_until
+from tests.support import FLYING, read_until_flying, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -48,6 +48,7 @@ class Run:
         pipe = subprocess.PIPE
         self.proc = subprocess.Popen(cmd, stdout=pipe, stderr=pipe, env=env, **popen)
         self.pids: set[int] = set()
+        self.said: list[bytes] = []  # stderr read before finish()
 
     def services(self) -> list[psutil.Process]:
         try:
@@ -56,22 +57,18 @@ class Run:
             return []
 
     def wait_flying(self) -> None:
-        """Until the environment runs (every service started) and a little of the mission
-        has flown; remembers every service's PID."""
-
-        def flying() -> bool:
-            kids = self.services()
-            self.pids |= {p.pid for p in kids}
-            return any("services.flight.environment" in " ".join(p.cmdline()) for p in kids)
-
-        assert wait_until(flying, timeout=60), self.finish(5)[1]
+        """Until the launcher says the services are alive (the environment then flies) and a
+        little of the mission has flown; remembers every service's PID."""
+        assert self.proc.stderr is not None
+        self.said = read_until_flying(self.proc.stderr)
+        assert FLYING in self.said[-1], self.finish(5)[1]
         time.sleep(2.0)
         self.pids |= {p.pid for p in self.services()}
         assert len(self.pids) == 4  # monitor, nav-lqr, ctrl-lqr, environment
 
     def finish(self, timeout: float = 90) -> tuple[int, str]:
         _, err = self.proc.communicate(timeout=timeout)
-        return self.proc.returncode, err.decode()
+        return self.proc.returncode, b"".join([*self.said, err]).decode()
 
     def folder(self) -> Path:
         (folder,) = self.runs.iterdir()

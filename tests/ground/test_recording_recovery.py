@@ -132,26 +132,25 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
     import psutil
     from mcap.reader import NonSeekingReader
 
-    from tests.support import wait_until
+    from tests.support import FLYING, read_until_flying
 
     dep = tmp_path / "kill9.toml"
     dep.write_text(LONG)
     cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output",
-           str(tmp_path / "runs"), "--quiet"]  # fmt: skip
+           str(tmp_path / "runs")]  # fmt: skip
     launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
     def kids() -> list[psutil.Process]:
         return psutil.Process(launcher.pid).children(recursive=True)
 
-    def flying() -> bool:
-        return any("services.flight.environment" in " ".join(p.cmdline()) for p in kids())
-
-    assert wait_until(flying, timeout=60)
+    assert launcher.stderr is not None
+    said = read_until_flying(launcher.stderr)
+    assert FLYING in said[-1], said
     time.sleep(3.0)
     (monitor,) = [p for p in kids() if "services.ground.monitor" in p.cmdline()]
     monitor.kill()
-    _, err = launcher.communicate(timeout=120)
-    err = err.decode()
+    _, rest = launcher.communicate(timeout=120)
+    err = b"".join([*said, rest]).decode()
     assert launcher.returncode == 1, err
     assert "monitor exited with status -9" in err and "report recovered" in err, err
     (folder,) = (tmp_path / "runs").iterdir()
