@@ -92,7 +92,8 @@ def profile_run(deployment: str | None) -> dict[str, object]:
     assert proc.stdout is not None
     folder = Path(proc.stdout.read().strip().splitlines()[-1])
     with (folder / "recording.mcap").open("rb") as f:
-        clocks = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
+        # publish_time: the monitor's receive wall time (log_time is simulation time)
+        clocks = [m.publish_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
     cpu: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for (name, _), (comm, seconds) in seen.items():
         cpu[name][re.sub(r"-\d+$", "", comm)] += seconds
