@@ -11,10 +11,10 @@ newest navigation sample it has; with a link delay d on its inputs (the deployme
 that is the sample measured at T - d, and the step waits until that sample is accounted for
 (delivered, or lost by its link).  Samples and steps are taken in time order, a step before the
 sample measured at its own time: with no delay this is exactly ``Controller.on_sample``.
-While its navigation service is away (liveliness token gone for NAV_AWAY_GRACE, until the token
-is back) a step flies on the newest sample there is.  Restarted into a running mission
-(``--join``) it flies from the first step it has a sample for; a learner starts over
-(``Controller.rejoin``) and says so in its log.
+While its navigation service is away (liveliness token gone for a grace, until the token is
+back) a step flies on the newest sample there is (``services.flight.step_gate``).  Restarted
+into a running mission (``--join``) it flies from the first step it has a sample for; a learner
+starts over (``Controller.rejoin``) and says so in its log.
 Health (docs/health.md): in lock-step a step whose sample does not come is said after
 run.command_deadline and given up past run.hang_timeout (exit HANG_STATUS, naming nav-<deputy>);
 in real time a step whose newest sample is older than run.nav_stale_limit flies the safe
@@ -28,15 +28,15 @@ import collections
 import math
 import queue
 import sys
-import time
 from typing import Any
 
 import numpy as np
 
 from services.bus import queue_handler, watch_alive
 from services.flight.control import Controller
-from services.flight.health import HANG_STATUS, SAFE_SIGMA, HangError, Waiting
+from services.flight.health import HANG_STATUS, SAFE_SIGMA, HangError
 from services.flight.runtime import ServiceContext, run_service
+from services.flight.step_gate import StepGate
 from services.flight.streams import FinalClock, SamplePairs
 from services.interface import (
     CLOCK,
@@ -49,9 +49,6 @@ from services.interface import (
 )
 from services.model import IN_PLANE
 
-NAV_AWAY_GRACE = 1.0
-"""Wall seconds after navigation's token goes before steps fly without its samples: a token's
-undeclaration can overtake the samples the service put just before it left."""
 _SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
 _PRESENCE = "presence"  # inbox tag: the navigation service came or went
 _LOST = "lost"  # inbox tag: the bus's rate budget dropped nav or exo messages unread (a flood)
@@ -104,43 +101,29 @@ class ControllerService:
         self.sc = sc = ctrl.sc
         run = ctx.deployment.run
         self.status_every = run.status_every
-        self.fsw, self.nav_period = run.fsw_period, ctrl.deputy.navigation.period
+        self.fsw, nav_period = run.fsw_period, ctrl.deputy.navigation.period
         # A sample measured at t reaches this controller at t + delay (its links' nominal
         # delay): the flight-software step at T flies on the newest sample measured by T - delay.
-        self.delay = max(
+        delay = max(
             ctx.bus.latency(f"nav-{sc}", nav_state_topic(sc)),
             ctx.bus.latency("environment", EXOSTATE),
         )
+        self.gate = StepGate(run, sc, nav_period, delay)
         self.pairs = SamplePairs(("nav", "exo"))  # nav: (x, altitude, z); exo: v
         # samples not yet collected: t -> (x, v, altitude, z), as Sample without its t
         self.ready: dict[float, tuple[np.ndarray, np.ndarray, float, np.ndarray]] = {}
         self.last: Sample | None = None  # newest collected sample
         # collected samples a step may still fly on (up to its delay behind it)
         self.recent: collections.deque[Sample] = collections.deque(
-            maxlen=math.ceil(self.delay / self.nav_period) + 8
+            maxlen=math.ceil(delay / nav_period) + 8
         )
         self.counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0,
                          "fault_detections": 0, "relearning_abandoned": 0,
                          "safe_attitude_steps": 0}  # fmt: skip
-        # the clock's time reached, and the nav and exo samples accounted for up to
-        self.reached = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}
         self.steps = 0
         # a restarted controller flies from the first step it has a sample for (on_sample)
         self.next_tick = math.inf if ctx.joining else 0.0
-        # while navigation is away (its token gone NAV_AWAY_GRACE ago, until the token is
-        # back), steps fly on the newest sample there is instead of waiting for one that will
-        # not come.  Not until its next sample: a late or replayed one would end the absence
-        # for good.
-        self.nav_gone: float | None = None  # when its token went (monotonic s)
         self.final = FinalClock()
-        # health (docs/health.md): in lock-step a step waits for its sample, said after
-        # run.command_deadline and given up past run.hang_timeout; in real time a step whose
-        # newest sample is older than the limit flies the safe attitude
-        self.lockstep = run.mode == "lockstep"
-        self.patience = (run.command_deadline, run.hang_timeout)
-        self.waiting: tuple[float, Waiting] | None = None  # the step waited for, and how long
-        self.stale_limit = run.nav_stale_limit or 2.0 * self.fsw
-        self.safe = False  # flying the safe attitude
 
     # -- publishing ---------------------------------------------------------------------------
 
@@ -190,7 +173,7 @@ class ControllerService:
         try:
             while not self.ctx.stop.is_set():
                 try:
-                    kind, msg = self.inbox.get(timeout=0.5 if self.nav_gone is None else 0.1)
+                    kind, msg = self.inbox.get(timeout=0.5 if self.gate.nav_gone is None else 0.1)
                 except queue.Empty:
                     if self.final.grace_over():
                         break  # the last samples were lost on their links
@@ -215,41 +198,20 @@ class ControllerService:
         return status
 
     def check_waiting(self) -> None:
-        """Lock-step: the step whose clock has come but not its sample waits; said after
-        run.command_deadline, ``HangError`` naming the silent service past run.hang_timeout."""
-        T, reached = self.next_tick, self.reached
-        if not self.lockstep or math.isinf(T) or reached["now"] < T - 1e-6 or self.tick_ready(T):
-            self.waiting = None
-            return
-        if self.waiting is None or self.waiting[0] != T:
-            self.waiting = (T, Waiting(*self.patience))
-        waiting, want = self.waiting[1], self.expected_sample(T)
-        who = f"nav-{self.sc}" if reached["nav"] < want - 1e-6 else "environment"
-        now = time.monotonic()
-        if waiting.said_at(now):
-            self.ctx.log("warning", f"lock-step paused at t = {T:.0f} s: no sample for t = "
-                         f"{want:.0f} s from {who} for {waiting.said:g} s", T)  # fmt: skip
-        if waiting.over(now):
-            raise HangError(who, f"sample for t = {want:.0f} s", T, waiting.hang)
+        """Lock-step: the step whose clock has come but not its sample waits (StepGate.check)."""
+        self.gate.check(self.next_tick, lambda said: self.ctx.log("warning", said, self.next_tick))
 
     def take(self, kind: str, msg: Any) -> None:
         """One inbox entry: navigation's presence (``msg``: up or not), or a message: a sample
         accounted for by its link, a clock, a sample."""
         if kind == _PRESENCE:
-            if msg:  # back: a restarted navigation is alive once it publishes
-                self.nav_gone = None
-            elif self.nav_gone is None:  # gone: from the first notice
-                self.nav_gone = time.monotonic()
+            self.gate.presence(bool(msg))
         elif kind == _SEEN:
-            key = "nav" if msg.schema == "nav" else "exo"
-            self.reached[key] = max(self.reached[key], msg.t)
+            self.gate.accounted("nav" if msg.schema == "nav" else "exo", msg.t)
         elif kind == _LOST:  # flooded past its budget: the pending step's sample may be lost
-            key = "exo" if msg == EXOSTATE else "nav"
-            if not math.isinf(self.next_tick):
-                want = self.expected_sample(self.next_tick)
-                self.reached[key] = max(self.reached[key], want)
+            self.gate.flooded("exo" if msg == EXOSTATE else "nav", self.next_tick)
         elif msg.schema == "clock":
-            self.reached["now"] = max(self.reached["now"], msg.t)
+            self.gate.clock(msg.t)
             self.ctx.bus.pump(msg.t)  # release what the links held until now
             self.final.on_clock(msg)
         else:
@@ -276,40 +238,19 @@ class ControllerService:
             stale = self.pairs.forget_before(last_t)
             self.counters["samples_rejected"] += sum("nav" in s for s in stale)
         if self.next_tick == math.inf and self.ready:  # restarted: the first step it can fly
-            self.next_tick = math.ceil((min(self.ready) + self.delay) / self.fsw - 1e-9) * self.fsw
+            first = min(self.ready) + self.gate.delay
+            self.next_tick = math.ceil(first / self.fsw - 1e-9) * self.fsw
             self.ctx.log("warning", self.ctrl.rejoin(self.next_tick), self.next_tick)
             self.publish_gains(self.next_tick)
 
     # -- steps and samples, in time order -----------------------------------------------------
-
-    def expected_sample(self, T: float) -> float:
-        """The newest sample the step at T can have (negative: none yet)."""
-        return math.floor((T - self.delay) / self.nav_period + 1e-9) * self.nav_period
-
-    def nav_away(self) -> bool:
-        return self.nav_gone is not None and time.monotonic() - self.nav_gone >= NAV_AWAY_GRACE
-
-    def tick_ready(self, T: float) -> bool:
-        """The clock has reached T and the sample the step flies on is accounted for
-        (delivered, or held or lost by its link)."""
-        if math.isinf(T):  # restarted, no sample yet: no step to fly
-            return False
-        want, reached = self.expected_sample(T), self.reached
-        if not self.lockstep and reached["now"] >= T + self.stale_limit - 1e-6:
-            return True  # real time does not wait past the limit: the step flies safe
-        return reached["now"] >= T - 1e-6 and (
-            want < -1e-6
-            or (
-                (reached["nav"] >= want - 1e-6 or self.nav_away()) and reached["exo"] >= want - 1e-6
-            )
-        )
 
     def tick(self, T: float) -> None:
         """The flight-software step at T: the command, and any learning it brings."""
         ctrl, counters = self.ctrl, self.counters
         # the newest sample measured by T - delay: a sample a later clock's pump released
         # early (the environment runs ahead of a delayed loop) must not shorten the delay
-        limit = self.expected_sample(T) + 1e-6
+        limit = self.gate.expected_sample(T) + 1e-6
         candidates = [(t, *self.ready[t]) for t in self.ready if t <= limit]
         candidates += [s for s in self.recent if s[0] <= limit]
         newest = max(candidates, key=lambda s: s[0]) if candidates else None
@@ -342,21 +283,11 @@ class ControllerService:
             self.ctx.publish_stats(T, counters)
 
     def fly_safe(self, T: float, newest: Sample | None) -> bool:
-        """Real time: whether the step at T flies the safe attitude, its newest sample older
-        than the limit (run.nav_stale_limit) past the one it should have; said on the way in
-        and out, counted in safe_attitude_steps."""
-        if self.lockstep or (self.steps == 0 and newest is None):
-            return False
-        age = self.expected_sample(T) - (newest[0] if newest is not None else -math.inf)
-        safe = age > self.stale_limit + 1e-6
-        if safe != self.safe:
-            self.safe = safe
-            said = (
-                f"navigation {age:.0f} s old (limit {self.stale_limit:g} s): flying the "
-                "safe attitude"
-                if safe
-                else "navigation is back: flying the control law"
-            )
+        """Real time: whether the step at T flies the safe attitude (StepGate.stale); said on
+        the way in and out, counted in safe_attitude_steps."""
+        newest_t = newest[0] if newest is not None else None
+        safe, said = self.gate.stale(T, newest_t, first=self.steps == 0)
+        if said is not None:
             self.ctx.log("warning", f"ctrl-{self.sc} at t = {T:.0f} s: {said}", T)
         self.counters["safe_attitude_steps"] += safe
         return safe
@@ -383,7 +314,7 @@ class ControllerService:
                     self.collect(first)
                 else:
                     return
-            elif self.tick_ready(self.next_tick):
+            elif self.gate.ready(self.next_tick):
                 self.tick(self.next_tick)
                 self.next_tick += self.fsw
             else:
@@ -394,7 +325,7 @@ class ControllerService:
         final_t = self.final.t
         if final_t is None or self.next_tick <= final_t + 1e-6:
             return False
-        return self.last is not None and self.last[0] >= self.expected_sample(final_t) - 1e-6
+        return self.last is not None and self.last[0] >= self.gate.expected_sample(final_t) - 1e-6
 
 
 if __name__ == "__main__":

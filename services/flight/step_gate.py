@@ -1,0 +1,135 @@
+"""When a controller's flight-software step may fly, and on what: the gate between the inputs a
+controller has accounted for and its steps (``services.flight.controller``).
+
+A step at T flies on the newest navigation sample measured by T - delay (the links' nominal
+delay), once the clock has reached T and that sample, and its exostate, are accounted for:
+delivered, or held or lost by their links.  While navigation is away (its liveliness token gone
+for ``NAV_AWAY_GRACE``, until it is back) a step does not wait for its sample.  Health
+(docs/health.md): in lock-step a step whose sample does not come is said after
+run.command_deadline and given up past run.hang_timeout (``HangError`` naming the silent
+service); in real time a step whose newest sample is older than run.nav_stale_limit flies the
+safe attitude.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+from services.flight.health import HangError, Waiting
+
+NAV_AWAY_GRACE = 1.0
+"""Wall seconds after navigation's token goes before steps fly without its samples: a token's
+undeclaration can overtake the samples the service put just before it left."""
+
+
+class StepGate:
+    """What a controller's steps wait for.
+
+    Parameters
+    ----------
+    run : the deployment's ``[run]`` (mode, fsw_period, command_deadline, hang_timeout,
+        nav_stale_limit).
+    sc : the deputy's name (its navigation service is ``nav-<sc>``).
+    nav_period : the navigation sample interval, s.
+    delay : the nominal delay of the controller's input links, s.
+    """
+
+    def __init__(self, run: Any, sc: str, nav_period: float, delay: float) -> None:
+        self.sc, self.nav_period, self.delay = sc, nav_period, delay
+        # the clock's time reached, and the nav and exo samples accounted for up to
+        self.reached = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}
+        # while navigation is away (its token gone NAV_AWAY_GRACE ago, until the token is
+        # back), steps fly on the newest sample there is instead of waiting for one that will
+        # not come.  Not until its next sample: a late or replayed one would end the absence
+        # for good.
+        self.nav_gone: float | None = None  # when its token went (monotonic s)
+        self.lockstep = run.mode == "lockstep"
+        self.patience = (run.command_deadline, run.hang_timeout)
+        self.waiting: tuple[float, Waiting] | None = None  # the step waited for, and how long
+        self.stale_limit = run.nav_stale_limit or 2.0 * run.fsw_period
+        self.safe = False  # flying the safe attitude
+
+    # -- what has been accounted for ----------------------------------------------------------
+
+    def clock(self, t: float) -> None:
+        self.reached["now"] = max(self.reached["now"], t)
+
+    def accounted(self, key: str, t: float) -> None:
+        """A ``key`` ("nav" or "exo") sample measured at t delivered, held or lost by its link."""
+        self.reached[key] = max(self.reached[key], t)
+
+    def flooded(self, key: str, T: float) -> None:
+        """``key``'s messages dropped unread by the rate budget: the sample the step at T
+        flies on counts as lost."""
+        if not math.isinf(T):
+            self.accounted(key, self.expected_sample(T))
+
+    def presence(self, up: bool) -> None:
+        """Navigation's liveliness token came (``up``) or went."""
+        if up:  # back: a restarted navigation is alive once it publishes
+            self.nav_gone = None
+        elif self.nav_gone is None:  # gone: from the first notice
+            self.nav_gone = time.monotonic()
+
+    # -- the steps ----------------------------------------------------------------------------
+
+    def expected_sample(self, T: float) -> float:
+        """The newest sample the step at T can have (negative: none yet)."""
+        return math.floor((T - self.delay) / self.nav_period + 1e-9) * self.nav_period
+
+    def nav_away(self) -> bool:
+        return self.nav_gone is not None and time.monotonic() - self.nav_gone >= NAV_AWAY_GRACE
+
+    def ready(self, T: float) -> bool:
+        """The clock has reached T and the sample the step flies on is accounted for
+        (delivered, or held or lost by its link)."""
+        if math.isinf(T):  # restarted, no sample yet: no step to fly
+            return False
+        want, reached = self.expected_sample(T), self.reached
+        if not self.lockstep and reached["now"] >= T + self.stale_limit - 1e-6:
+            return True  # real time does not wait past the limit: the step flies safe
+        return reached["now"] >= T - 1e-6 and (
+            want < -1e-6
+            or (
+                (reached["nav"] >= want - 1e-6 or self.nav_away()) and reached["exo"] >= want - 1e-6
+            )
+        )
+
+    def check(self, T: float, say: Callable[[str], None]) -> None:
+        """Lock-step: the step at T whose clock has come but not its sample waits; ``say``s
+        so once it has waited run.command_deadline, and raises ``HangError`` naming the
+        silent service past run.hang_timeout."""
+        reached = self.reached
+        if not self.lockstep or math.isinf(T) or reached["now"] < T - 1e-6 or self.ready(T):
+            self.waiting = None
+            return
+        if self.waiting is None or self.waiting[0] != T:
+            self.waiting = (T, Waiting(*self.patience))
+        waiting, want = self.waiting[1], self.expected_sample(T)
+        who = f"nav-{self.sc}" if reached["nav"] < want - 1e-6 else "environment"
+        now = time.monotonic()
+        if waiting.said_at(now):
+            say(f"lock-step paused at t = {T:.0f} s: no sample for t = {want:.0f} s from {who} "
+                f"for {waiting.said:g} s")  # fmt: skip
+        if waiting.over(now):
+            raise HangError(who, f"sample for t = {want:.0f} s", T, waiting.hang)
+
+    def stale(self, T: float, newest_t: float | None, first: bool) -> tuple[bool, str | None]:
+        """Real time: whether the step at T flies the safe attitude, its newest sample (measured
+        at ``newest_t``, None: none) older than the limit (run.nav_stale_limit) past the one it
+        should have; and what to say on the way in or out.  ``first``: no step has flown yet
+        (a step before any sample holds zero, not the safe attitude)."""
+        if self.lockstep or (first and newest_t is None):
+            return False, None
+        age = self.expected_sample(T) - (newest_t if newest_t is not None else -math.inf)
+        safe = age > self.stale_limit + 1e-6
+        if safe == self.safe:
+            return safe, None
+        self.safe = safe
+        if safe:
+            return True, (f"navigation {age:.0f} s old (limit {self.stale_limit:g} s): flying "
+                          "the safe attitude")  # fmt: skip
+        return False, "navigation is back: flying the control law"

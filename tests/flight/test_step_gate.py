@@ -1,0 +1,102 @@
+"""When a controller's step may fly (``services.flight.step_gate.StepGate``): on the sample
+measured by T - delay once it is accounted for, without navigation once it is away, said and
+given up in lock-step, flown safe on stale navigation in real time."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from services.flight import step_gate
+from services.flight.health import HangError
+from services.flight.step_gate import StepGate
+
+
+def _run(mode: str = "lockstep", stale: float = 0.0) -> SimpleNamespace:
+    return SimpleNamespace(mode=mode, fsw_period=60.0, command_deadline=1.0, hang_timeout=3.0,
+                           nav_stale_limit=stale)  # fmt: skip
+
+
+class _Clock:
+    """A monotonic clock the test moves."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch: pytest.MonkeyPatch) -> _Clock:
+    c = _Clock()
+    monkeypatch.setattr(step_gate.time, "monotonic", c)
+    monkeypatch.setattr("services.flight.health.time.monotonic", c)
+    return c
+
+
+def test_a_step_flies_on_the_sample_measured_a_delay_before_it_once_accounted_for() -> None:
+    gate = StepGate(_run(), "lqr", nav_period=10.0, delay=15.0)
+    assert gate.expected_sample(120.0) == 100.0  # 120 - 15 = 105: the sample of t = 100
+    gate.clock(120.0)
+    assert not gate.ready(120.0)
+    gate.accounted("nav", 100.0)
+    assert not gate.ready(120.0)  # its exostate too
+    gate.accounted("exo", 100.0)
+    assert gate.ready(120.0)
+    assert not gate.ready(180.0)  # the clock has not reached it
+
+
+def test_a_flood_counts_the_pending_steps_sample_as_lost() -> None:
+    gate = StepGate(_run(), "lqr", nav_period=10.0, delay=0.0)
+    gate.clock(60.0)
+    gate.accounted("exo", 60.0)
+    gate.flooded("nav", 60.0)
+    assert gate.ready(60.0)
+    gate.flooded("nav", float("inf"))  # a restarted controller with no step yet: nothing
+
+
+def test_steps_stop_waiting_for_navigation_a_grace_after_its_token_goes(clock: _Clock) -> None:
+    gate = StepGate(_run(), "lqr", nav_period=10.0, delay=0.0)
+    gate.clock(60.0)
+    gate.accounted("exo", 60.0)
+    gate.presence(False)
+    assert not gate.ready(60.0)
+    clock.now += step_gate.NAV_AWAY_GRACE
+    assert gate.ready(60.0)
+    gate.presence(True)
+    assert not gate.ready(60.0)
+
+
+def test_lock_step_says_a_wait_then_gives_up_naming_the_silent_service(clock: _Clock) -> None:
+    gate = StepGate(_run(), "lqr", nav_period=10.0, delay=0.0)
+    gate.clock(60.0)
+    gate.accounted("exo", 60.0)
+    said: list[str] = []
+    gate.check(60.0, said.append)
+    assert said == []
+    clock.now += 1.0
+    gate.check(60.0, said.append)
+    assert said == ["lock-step paused at t = 60 s: no sample for t = 60 s from nav-lqr for 1 s"]
+    clock.now += 2.0
+    with pytest.raises(HangError, match="nav-lqr is hung") as caught:
+        gate.check(60.0, said.append)
+    assert caught.value.service == "nav-lqr" and len(said) == 1
+    gate.accounted("nav", 60.0)
+    gate.check(60.0, said.append)  # ready: the wait is over
+    assert gate.waiting is None
+
+
+def test_real_time_flies_safe_on_stale_navigation_and_says_so_once_each_way() -> None:
+    gate = StepGate(_run("realtime", stale=120.0), "lqr", nav_period=10.0, delay=0.0)
+    assert gate.stale(0.0, None, first=True) == (False, None)  # nothing measured yet
+    assert gate.stale(120.0, 0.0, first=False) == (False, None)  # 120 s old: at the limit
+    safe, said = gate.stale(180.0, 0.0, first=False)
+    assert safe and said is not None and "flying the safe attitude" in said
+    assert gate.stale(240.0, 0.0, first=False) == (True, None)
+    assert gate.stale(300.0, 300.0, first=False) == (
+        False, "navigation is back: flying the control law")  # fmt: skip
+    gate.clock(300.0 + 120.0)
+    assert gate.ready(300.0)  # real time does not wait past the limit
+    StepGate(_run(), "lqr", 10.0, 0.0).check(60.0, lambda _: None)  # lock-step: no clock yet
