@@ -27,9 +27,8 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import zenoh
 
@@ -39,37 +38,19 @@ from services.flight.health import HANG_STATUS
 from services.ground import credentials, lifecycle
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
+from services.ground.processes import ServiceProcesses
 from services.ground.runfolder import FOLDER_MODE, make_run_folder
 from services.interface.topics import fault_topic, log_topic, stats_topic
 from services.model import holding_warnings
 
-MODULES = {
-    "environment": "services.flight.environment",
-    "monitor": "services.ground.monitor",
-    "nav": "services.flight.navigation",
-    "ctrl": "services.flight.controller",
-}
-
-
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
 REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
-
-
-def module_of(service: str) -> str:
-    return MODULES[service.split("-", 1)[0]]
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-@dataclass
-class Process:
-    name: str
-    popen: subprocess.Popen
-    log: IO[bytes]
 
 
 class Launcher:
@@ -90,7 +71,7 @@ class Launcher:
         self.folder_mode = FOLDER_MODE if folder_mode is None else folder_mode
         self.port = dep.bus.port or free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
-        self.procs: dict[str, Process] = {}
+        self.services = ServiceProcesses(dep, self.run, self.out, self.hub, self.port, quiet, live)
         self.quiet = quiet
         self.restarts: dict[str, int] = {}
         self.kills = 0
@@ -101,67 +82,6 @@ class Launcher:
         """Progress on stderr (not with --quiet); an error is always said."""
         if error or not self.quiet:
             print(f"ddvi run: {text}", file=sys.stderr, flush=True)
-
-    def start(self, name: str, join: bool = False) -> None:
-        """Start one service; ``join``: a restart into the running mission (its log goes on)."""
-        logs = self.out / "logs"
-        log = open(logs / f"{name}.log", "ab" if join else "wb")  # noqa: SIM115 - see stop_all
-        host = self.dep.host_of(name)
-        hub = (
-            self.hub
-            if host is None
-            else credentials.host_endpoint(self.dep, hub_address(host), self.port)
-        )
-        # a service on another host runs in its network namespace (ip netns exec execs it,
-        # so the pid and the signals are the service's own)
-        prefix = [] if host is None else ["ip", "netns", "exec", self.dep.host[host].netns]
-        cmd = [
-            *prefix,
-            sys.executable,
-            "-m",
-            module_of(name),
-            "--deployment",
-            self.dep.path,
-            "--run",
-            self.run,
-            "--hub",
-            hub,
-            "--name",
-            name,
-            "--out",
-            str(self.out),
-            *(["--join"] if join else []),
-            *(["--live", self.live] if name == "monitor" and self.live else []),
-            *credentials.service_arguments(self.dep, self.out, name),
-        ]
-        env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-        # a service stops by itself when the launcher dies (services.flight.runtime)
-        env["DDVI_LAUNCHER_PID"] = str(os.getpid())
-        # the monitor keeps the terminal for its live status (and logs to its file too:
-        # services.ground.monitor); the others log to files
-        stderr = None if name == "monitor" and not self.quiet else log
-        popen = subprocess.Popen(cmd, stdout=log, stderr=stderr, env=env, start_new_session=True)
-        if (old := self.procs.get(name)) is not None:
-            old.log.close()
-        self.procs[name] = Process(name, popen, log)
-
-    def stop_all(self, grace: float = 5.0, report_grace: float = 60.0) -> None:
-        """SIGTERM the flight services (SIGKILL after ``grace`` s), then the monitor, which
-        closes its recording and writes a (partial) report: it gets ``report_grace`` s."""
-        flight = [p for name, p in self.procs.items() if name != "monitor"]
-        monitor = [p for name, p in self.procs.items() if name == "monitor"]
-        for group, wait in ((flight, grace), (monitor, report_grace)):
-            for p in group:
-                if p.popen.poll() is None:
-                    p.popen.send_signal(signal.SIGTERM)
-            deadline = time.monotonic() + wait
-            for p in group:
-                try:
-                    p.popen.wait(timeout=max(deadline - time.monotonic(), 0.1))
-                except subprocess.TimeoutExpired:
-                    p.popen.kill()
-                    p.popen.wait()
-                p.log.close()
 
     def execute(self) -> int:
         """Run the mission; the exit status (``services.ground.lifecycle``): 0 completed, 1
@@ -188,7 +108,7 @@ class Launcher:
             status = self._open_and_fly()
         finally:
             try:
-                self.stop_all(report_grace=self.report_wait())
+                self.services.stop_all(report_grace=self.report_wait())
             finally:
                 self.signals.restore()
         if self.monitor_died:
@@ -233,18 +153,11 @@ class Launcher:
             return self._fly(session, started)
         return lifecycle.EXIT_FAILED  # not reached (mypy: ExitStack may swallow)
 
-    def _exited(self) -> tuple[str, int] | None:
-        """A started service that has ended (name, status), or None."""
-        for name, p in self.procs.items():
-            if (rc := p.popen.poll()) is not None:
-                return name, rc
-        return None
-
     def _await(self, session: Any, names: list[str]) -> int | None:
         """Wait for the services' liveliness, watching them: None when all are alive, else
         the exit status (a crash is said at once, with the service's last log lines)."""
         how, what = lifecycle.await_alive(
-            session, self.run, names, self.dep.run.startup_timeout, self._exited,
+            session, self.run, names, self.dep.run.startup_timeout, self.services.exited,
             lambda: self.signals.received is not None,
         )  # fmt: skip
         if how == "alive":
@@ -275,7 +188,7 @@ class Launcher:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
             for name in [*first, "environment"]:
-                self.start(name)
+                self.services.start(name)
             if (status := self._await(session, first)) is not None:
                 return status
             self.say(f"{len(first)} services alive in {time.monotonic() - started:.1f} s")
@@ -329,7 +242,7 @@ class Launcher:
 
     def _kill(self, bus: Bus, target: str, t: float) -> None:
         """A ``kill`` fault: SIGKILL the named service, as a crash would."""
-        p = self.procs.get(target)
+        p = self.services.get(target)
         if p is None:
             why = "no such service"
         elif target in ("environment", "monitor"):
@@ -346,7 +259,7 @@ class Launcher:
         self._event(bus, "warning", f"fault kill {target}: killed (SIGKILL) at t = {t:.0f} s", t)
 
     def _supervise(self, started: float, bus: Bus, faults: queue.SimpleQueue) -> int:
-        env, monitor = self.procs["environment"].popen, self.procs["monitor"].popen
+        env, monitor = self.services["environment"].popen, self.services["monitor"].popen
         sim_t = 0.0
         while env.poll() is None:
             if self.signals.received is not None:
@@ -356,8 +269,8 @@ class Launcher:
                 sim_t = max(sim_t, msg.t)
                 if msg.body["kind"] == "kill":
                     self._kill(bus, msg.body["target"], msg.t)
-            for name, p in list(self.procs.items()):
-                rc = p.popen.poll()
+            for p in self.services:
+                name, rc = p.name, p.popen.poll()
                 if rc == HANG_STATUS:
                     return self._hung(name)
                 if rc in (None, 0) or name == "environment":
@@ -366,7 +279,7 @@ class Launcher:
                 done = self.restarts.get(name, 0)
                 if policy.policy == "on-failure" and done < policy.max_restarts:
                     self.restarts[name] = done + 1
-                    self.start(name, join=True)
+                    self.services.start(name, join=True)
                     self._event(bus, "warning", f"{name} exited with status {rc}; restarted "
                                 f"({done + 1} of {policy.max_restarts})", sim_t)  # fmt: skip
                     continue

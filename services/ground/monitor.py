@@ -468,8 +468,8 @@ def _open_live(ctx: ServiceContext, address: str) -> LiveServer | None:
 
 def _main(ctx: ServiceContext, live_address: str | None = None) -> int:
     inbox: Inbox = queue.SimpleQueue()
-    # Subscribe before anything else: the launcher starts the other services once it sees
-    # this process alive.
+    # Subscribe before anything else: the other services declare themselves alive, and
+    # publish, once they see this process alive (services.flight.runtime).
     subs = _subscribe(ctx.bus.session, ctx.run, inbox, ctx.bus.budget)
     os.nice(NICENESS)  # this thread and those it starts later; not the callback's, started
     # the live view's threads are started here, so they yield to the flight too; before the
