@@ -122,6 +122,7 @@ class Launcher:
         made = False
         try:
             self.run, self.out = make_run_folder(self.root, self.run, self.folder_mode)
+            self.services.run, self.services.out = self.run, self.out  # a new name if taken
             made = True
             (self.out / "logs").mkdir()
             self._hub_settings()  # bus.json and the credentials, each a new file
