@@ -2,15 +2,14 @@
 
 Reads a deployment, is the run's zenoh hub (the endpoint every service connects to), starts each
 service as its own OS process, all at once (the environment, the time master, flies once it
-sees every other service alive), waits for their liveliness tokens, waits for the mission to
-complete and the monitor to write its report, then
-stops everything (SIGTERM, then SIGKILL after a grace period): no orphan, no hang.
+sees every other service alive), waits for their liveliness tokens, watches them while the
+mission flies (``services.ground.supervisor``: kill faults, restarts by policy), waits for the
+monitor to write its report, then stops everything (SIGTERM, then SIGKILL after a grace
+period): no orphan, no hang.
 
-Supervision: a service that dies before the mission ends is started again, into the running
-mission (``--join``), when its [[restart]] policy says so, up to its ``max_restarts``; else the
-run ends with status 1.  Inputs: ``fault/kill`` (fault messages, ``ddvi fault RUN kill
-SERVICE``): the named service is killed with SIGKILL, a crash.  Outputs: ``stats/launcher``
-(restarts, restarts.<service>, kills) after every restart or kill; ``log/launcher``.
+Inputs: ``fault/kill`` (fault messages, ``ddvi fault RUN kill SERVICE``).  Outputs:
+``stats/launcher`` (restarts, restarts.<service>, kills) after every restart or kill;
+``log/launcher``.
 """
 
 from __future__ import annotations
@@ -34,13 +33,13 @@ import zenoh
 
 from services.bus import Bus, BusSettings, error_text, open_session, queue_handler
 from services.config import Deployment
-from services.flight.health import HANG_STATUS
 from services.ground import credentials, lifecycle
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
 from services.ground.processes import ServiceProcesses
 from services.ground.runfolder import FOLDER_MODE, make_run_folder
-from services.interface.topics import fault_topic, log_topic, stats_topic
+from services.ground.supervisor import Supervisor
+from services.interface.topics import fault_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
@@ -73,10 +72,9 @@ class Launcher:
         self.hub = f"tcp/127.0.0.1:{self.port}"
         self.services = ServiceProcesses(dep, self.run, self.out, self.hub, self.port, quiet, live)
         self.quiet = quiet
-        self.restarts: dict[str, int] = {}
-        self.kills = 0
         self.signals = lifecycle.StopSignals()
-        self.monitor_died = False  # then the report is recovered from its recording
+        self.supervisor = Supervisor(dep, self.services, self.out, self.say,
+                                     lambda: self.signals.received is not None)  # fmt: skip
 
     def say(self, text: str, error: bool = False) -> None:
         """Progress on stderr (not with --quiet); an error is always said."""
@@ -111,7 +109,7 @@ class Launcher:
                 self.services.stop_all(report_grace=self.report_wait())
             finally:
                 self.signals.restore()
-        if self.monitor_died:
+        if self.supervisor.monitor_died:
             self._recover()
         return self._after_stop(status)
 
@@ -122,7 +120,9 @@ class Launcher:
         made = False
         try:
             self.run, self.out = make_run_folder(self.root, self.run, self.folder_mode)
-            self.services.run, self.services.out = self.run, self.out  # a new name if taken
+            # a new name if taken
+            self.services.run, self.services.out = self.run, self.out
+            self.supervisor.out = self.out
             made = True
             (self.out / "logs").mkdir()
             self._hub_settings()  # bus.json and the credentials, each a new file
@@ -193,7 +193,10 @@ class Launcher:
             if (status := self._await(session, first)) is not None:
                 return status
             self.say(f"{len(first)} services alive in {time.monotonic() - started:.1f} s")
-            return self._supervise(started, bus, faults)
+            status = self.supervisor.watch(bus, faults)
+            if status is not None:
+                return status
+            return self._await_report(self.services["monitor"].popen, started)
 
     def _after_stop(self, status: int) -> int:
         """Once every service is stopped: a stop signal's status (and whether the partial
@@ -228,93 +231,11 @@ class Launcher:
             )
         return self._hub
 
-    def _event(self, bus: Bus, level: str, text: str, t: float) -> None:
-        """Say it, log it on the bus, and publish the launcher's counters."""
-        self.say(text)
-        counters = {"restarts": sum(self.restarts.values()), "kills": self.kills}
-        counters.update({f"restarts.{k}": v for k, v in self.restarts.items()})
-        try:
-            log = {"service": "launcher", "level": level, "text": text}
-            bus.publish(log_topic("launcher"), "log", log, t)
-            stats = {"service": "launcher", "counters": counters}
-            bus.publish(stats_topic("launcher"), "stats", stats, t)
-        except Exception as exc:  # the bus is a report channel here, never a reason to stop
-            self.say(f"could not publish: {exc}")
-
-    def _kill(self, bus: Bus, target: str, t: float) -> None:
-        """A ``kill`` fault: SIGKILL the named service, as a crash would."""
-        p = self.services.get(target)
-        if p is None:
-            why = "no such service"
-        elif target in ("environment", "monitor"):
-            why = "the environment and the monitor are not killed by faults (they end the run)"
-        elif p.popen.poll() is not None:
-            why = "it is not running"
-        else:
-            why = ""
-        if why:
-            self._event(bus, "warning", f"fault kill {target}: ignored ({why})", t)
-            return
-        p.popen.kill()
-        self.kills += 1
-        self._event(bus, "warning", f"fault kill {target}: killed (SIGKILL) at t = {t:.0f} s", t)
-
-    def _supervise(self, started: float, bus: Bus, faults: queue.SimpleQueue) -> int:
-        env, monitor = self.services["environment"].popen, self.services["monitor"].popen
-        sim_t = 0.0
-        while env.poll() is None:
-            if self.signals.received is not None:
-                return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
-            while not faults.empty():
-                _, msg = faults.get_nowait()
-                sim_t = max(sim_t, msg.t)
-                if msg.body["kind"] == "kill":
-                    self._kill(bus, msg.body["target"], msg.t)
-            for p in self.services:
-                name, rc = p.name, p.popen.poll()
-                if rc == HANG_STATUS:
-                    return self._hung(name)
-                if rc in (None, 0) or name == "environment":
-                    continue
-                policy = self.dep.restart_policy(name)
-                done = self.restarts.get(name, 0)
-                if policy.policy == "on-failure" and done < policy.max_restarts:
-                    self.restarts[name] = done + 1
-                    self.services.start(name, join=True)
-                    self._event(bus, "warning", f"{name} exited with status {rc}; restarted "
-                                f"({done + 1} of {policy.max_restarts})", sim_t)  # fmt: skip
-                    continue
-                log = self.out / "logs" / f"{name}.log"
-                tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
-                self.say(f"{name} exited with status {rc} before the mission ended; last "
-                         f"lines of {log}:{tail or ' (empty)'}", error=True)  # fmt: skip
-                self.monitor_died = name == "monitor"
-                return 1
-            time.sleep(0.2)
-        if env.returncode == HANG_STATUS:
-            return self._hung("environment")
-        if env.returncode != 0:
-            log = self.out / "logs" / "environment.log"
-            self.say(f"environment exited with status {env.returncode}: "
-                     f"{lifecycle.log_reason(log)} (log: {log})", error=True)  # fmt: skip
-            return 1
-        return self._await_report(monitor, started)
-
     def report_wait(self) -> float:
         """Wall seconds the monitor has for its report once the mission is over: its series,
         figures and table grow with the deputies (32 take about a minute on a loaded 2-core
         machine)."""
         return REPORT_WAIT + REPORT_WAIT_PER_DEPUTY * len(self.dep.deputy)
-
-    def _hung(self, name: str) -> int:
-        """``name`` gave up a lock-step wait (run.hang_timeout): end the run, with its word on
-        which service is hung (docs/health.md)."""
-        log = self.out / "logs" / f"{name}.log"
-        said = [line for line in lifecycle.last_lines(log) if " is hung" in line]
-        why = said[-1].split(" ERROR ", 1)[-1] if said else f"see {log}"
-        self.say(f"{why}; {name} gave up waiting (run.hang_timeout): the run is ended",
-                 error=True)  # fmt: skip
-        return lifecycle.EXIT_FAILED
 
     def _await_report(self, monitor: subprocess.Popen, started: float) -> int:
         """Wait for the monitor's report (``report_wait`` s at most); the run's verdict from
