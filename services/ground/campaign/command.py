@@ -18,6 +18,7 @@ report (``services.ground.campaign.report``) is written beside it.  docs/campaig
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -139,7 +140,26 @@ def dask_client(workers: int | None, scheduler: str | None, dashboard: bool):
     with cluster, Client(cluster) as client:
         if dashboard:
             print(f"ddvi campaign: dashboard at {client.dashboard_link}", file=sys.stderr)
-        yield client
+        try:
+            yield client
+        finally:
+            _quiet_shutdown(client)
+
+
+def _silence_distributed() -> None:
+    import logging
+
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+
+
+def _quiet_shutdown(client: Any) -> None:
+    """Before the LocalCluster closes: its workers' and nannies' own logs to CRITICAL.  Their
+    heartbeats race the scheduler's close, and one that loses logs an ERROR with a traceback
+    about a closed connection: noise once the campaign is over or stopped (a task's error
+    reaches the client as its exception, not through these logs)."""
+    with contextlib.suppress(Exception):
+        client.run(_silence_distributed)
+        client.run(_silence_distributed, nanny=True)
 
 
 def _progress(quiet: bool):
