@@ -105,8 +105,11 @@ class Bus:
         self._closed = False
         self._rx = Reception(self.service, self.prefix, links, link_clock, seed, time_window,
                              budget)  # fmt: skip
-        self.time_window = time_window
-        self.budget = budget
+
+    @property
+    def budget(self) -> RateBudget | None:
+        """The rate budget its subscriptions take samples against (None: none)."""
+        return self._rx.budget
 
     # -- counters ---------------------------------------------------------------------------
 

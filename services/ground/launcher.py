@@ -73,7 +73,7 @@ class Launcher:
         self.services = ServiceProcesses(dep, self.run, self.out, self.hub, self.port, quiet, live)
         self.quiet = quiet
         self.signals = lifecycle.StopSignals()
-        self.supervisor = Supervisor(dep, self.services, self.out, self.say,
+        self.supervisor = Supervisor(dep, self.services, self.say,
                                      lambda: self.signals.received is not None)  # fmt: skip
 
     def say(self, text: str, error: bool = False) -> None:
@@ -120,9 +120,7 @@ class Launcher:
         made = False
         try:
             self.run, self.out = make_run_folder(self.root, self.run, self.folder_mode)
-            # a new name if taken
-            self.services.run, self.services.out = self.run, self.out
-            self.supervisor.out = self.out
+            self.services.run, self.services.out = self.run, self.out  # a new name if taken
             made = True
             (self.out / "logs").mkdir()
             self._hub_settings()  # bus.json and the credentials, each a new file

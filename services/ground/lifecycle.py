@@ -20,7 +20,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,22 @@ POLL = 0.05  # s between looks at the children while they start
 
 COMMAND_PROBLEMS = ("refused", "stale", "missing", "late")
 """The report's command counters that make a completed mission's exit status 3."""
+
+
+@contextlib.contextmanager
+def handling(signals: Iterable[int], handler: Callable[[int, Any], None]) -> Iterator[None]:
+    """``handler`` for ``signals`` while the block runs, the previous handlers restored after;
+    it replaces a handler inherited as ignored too (a script's ``&`` ignores SIGINT).  Only
+    the main thread may take signals: elsewhere the caller's stay in force."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, handler) for sig in signals}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def exit_for_signal(signum: int) -> int:

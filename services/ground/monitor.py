@@ -24,14 +24,14 @@ of the monitor loses at most that much; ``read_recording`` reads such a footer-l
 On a normal stop and on SIGTERM the writer is closed (summary and footer written).
 
 When the ``clock`` message with ``final = true`` arrives the monitor waits until every other
-service of the deployment has finished or ``FINAL_WAIT`` s pass, then closes the recording,
-writes the report (``services.ground.report``) and exits 0. A service seen alive has finished
-when its liveliness token is gone (services publish their final stats before leaving); one
-never seen alive, when it has sent stats with t >= the final time. Messages from different
-publishers are not ordered with respect to each other, so a service's final stats may arrive
-before the final clock; what arrives within ``FINAL_GRACE`` s after the last service finished
-is still recorded. SIGTERM before that closes the recording and writes a partial report
-(``"completed": false``), also exit 0.
+service of the deployment has finished or ``FINAL_WAIT`` s pass (``services.ground.ending``),
+then closes the recording, writes the report (``services.ground.report``) and exits 0. A
+service seen alive has finished when its liveliness token is gone (services publish their final
+stats before leaving); one never seen alive, when it has sent stats with t >= the final time.
+Messages from different publishers are not ordered with respect to each other, so a service's
+final stats may arrive before the final clock; what arrives within ``FINAL_GRACE`` s after the
+last service finished is still recorded. SIGTERM before that closes the recording and writes a
+partial report (``"completed": false``), also exit 0.
 
 Live status: ``services.ground.status``, refreshed every ``DRAW_PERIOD`` s.  With ``--live
 HOST:PORT`` (``ddvi run --live``) every message recorded is also served to Foxglove
@@ -59,6 +59,7 @@ import zenoh
 
 from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards
 from services.flight.runtime import ServiceContext, run_service
+from services.ground.ending import Ending
 from services.ground.live import LiveServer, live_server
 from services.ground.live_address import parse_address
 from services.ground.recording import RECORDING, TIMELINE, Recorder
@@ -71,9 +72,6 @@ log = logging.getLogger("ddvi.monitor")
 
 FLUSH_PERIOD = 0.5  # s between recording flushes (bounds the loss on kill -9)
 DRAW_PERIOD = 0.5  # s between live status refreshes
-FINAL_WAIT = 5.0  # s to wait for the other services' final stats after the final clock
-FINAL_GRACE = 0.25  # s to keep recording once every service has finished
-STOP_DRAIN = 1.0  # s to keep recording what is already queued after SIGTERM
 # s to record what is still queued once the subscribers are gone: the recording must be closed
 # (its summary and footer written) well within the launcher's report grace, whatever the backlog
 CLOSE_DRAIN = 10.0
@@ -281,56 +279,6 @@ def _subscribe(
         prefix + topics.alive_topic("*"), on_alive, history=True
     )
     return data_sub, alive_sub
-
-
-class Ending:
-    """When the recording loop ends: after the final clock, once every other service has
-    finished (plus ``FINAL_GRACE``) or ``FINAL_WAIT`` passed; on a stop request, once nothing
-    more is queued or ``STOP_DRAIN`` passed."""
-
-    def __init__(self) -> None:
-        self.final_deadline: float | None = None
-        self.grace_deadline: float | None = None
-        self.stop_deadline: float | None = None
-        self.waited_for: dict[str, int] = {}  # unrecorded messages the ending waited for
-
-    def check(self, mon: Monitor, stop: bool, idle: bool, now: float) -> bool | None:
-        """None to go on recording; else whether the mission completed."""
-        if mon.data.final_seen:
-            if self.final_deadline is None:
-                self.final_deadline = now + FINAL_WAIT
-                log.info("final clock at t = %.0f s; waiting for final stats", mon.data.sim_t)
-            if not mon.pending() and self.grace_deadline is None:
-                self.grace_deadline = now + FINAL_GRACE  # stragglers racing the token drops
-            graced = self.grace_deadline is not None and now >= self.grace_deadline
-            if graced and (unrecorded := mon.data.unrecorded()):
-                graced = False  # published and not here yet: wait for it, up to FINAL_WAIT
-                if not self.waited_for:
-                    log.info("waiting for what was published and has not come: %s",
-                             _by_publisher(unrecorded))  # fmt: skip
-                self.waited_for = unrecorded
-            elif graced and self.waited_for:
-                log.info("what was awaited came %.2f s after the last token went",
-                         now - (self.grace_deadline or now) + FINAL_GRACE)  # fmt: skip
-            if graced or now >= self.final_deadline:
-                if missing := mon.pending():
-                    log.warning("no final stats from %s after %.0f s", missing, FINAL_WAIT)
-                if unrecorded := mon.data.unrecorded():
-                    log.warning("published but never recorded: %s", _by_publisher(unrecorded))
-                return True
-        if stop:
-            # Record what has already arrived (bounded), then stop.
-            if self.stop_deadline is None:
-                self.stop_deadline = now + STOP_DRAIN
-                log.info("stop requested at t = %.0f s", mon.data.sim_t)
-            if idle or now >= self.stop_deadline:
-                return mon.data.final_seen
-        return None
-
-
-def _by_publisher(counts: dict[str, int]) -> str:
-    """``{"nav-ddvi": 6}`` as "6 from nav-ddvi", publishers in order."""
-    return ", ".join(f"{n} from {s}" for s, n in sorted(counts.items()))
 
 
 def _take_batch(mon: Monitor, inbox: Inbox, first: Item) -> None:

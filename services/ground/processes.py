@@ -27,7 +27,7 @@ MODULES = {
 
 
 def module_of(service: str) -> str:
-    return MODULES.get(service) or MODULES[service.split("-", 1)[0]]
+    return MODULES[service.split("-", 1)[0]]
 
 
 @dataclass

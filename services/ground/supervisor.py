@@ -11,7 +11,6 @@ from __future__ import annotations
 import queue
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 from services.bus import Bus
 from services.config import Deployment
@@ -30,15 +29,14 @@ class Supervisor:
     Parameters
     ----------
     dep : the deployment (its restart policies).
-    services : the run's processes.
-    out : the run folder (its ``logs/``).
+    services : the run's processes (and its folder, ``services.out``: their logs).
     say : how the launcher says a line on the terminal (``error``: even with --quiet).
     stopping : whether a stop signal has come.
     """
 
-    def __init__(self, dep: Deployment, services: ServiceProcesses, out: Path,
-                 say: Callable[..., None], stopping: Callable[[], bool]) -> None:  # fmt: skip
-        self.dep, self.services, self.out = dep, services, out
+    def __init__(self, dep: Deployment, services: ServiceProcesses, say: Callable[..., None],
+                 stopping: Callable[[], bool]) -> None:  # fmt: skip
+        self.dep, self.services = dep, services
         self.say, self.stopping = say, stopping
         self.restarts: dict[str, int] = {}
         self.kills = 0
@@ -63,7 +61,7 @@ class Supervisor:
         if env.returncode == HANG_STATUS:
             return self.hung("environment")
         if env.returncode != 0:
-            log = self.out / "logs" / "environment.log"
+            log = self.services.out / "logs" / "environment.log"
             self.say(f"environment exited with status {env.returncode}: "
                      f"{lifecycle.log_reason(log)} (log: {log})", error=True)  # fmt: skip
             return 1
@@ -85,7 +83,7 @@ class Supervisor:
                 self.event(bus, "warning", f"{name} exited with status {rc}; restarted "
                            f"({done + 1} of {policy.max_restarts})", sim_t)  # fmt: skip
                 continue
-            log = self.out / "logs" / f"{name}.log"
+            log = self.services.out / "logs" / f"{name}.log"
             tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
             self.say(f"{name} exited with status {rc} before the mission ended; last "
                      f"lines of {log}:{tail or ' (empty)'}", error=True)  # fmt: skip
@@ -127,7 +125,7 @@ class Supervisor:
     def hung(self, name: str) -> int:
         """``name`` gave up a lock-step wait (run.hang_timeout): end the run, with its word on
         which service is hung (docs/health.md)."""
-        log = self.out / "logs" / f"{name}.log"
+        log = self.services.out / "logs" / f"{name}.log"
         said = [line for line in lifecycle.last_lines(log) if " is hung" in line]
         why = said[-1].split(" ERROR ", 1)[-1] if said else f"see {log}"
         self.say(f"{why}; {name} gave up waiting (run.hang_timeout): the run is ended",

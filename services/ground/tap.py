@@ -23,11 +23,9 @@ import contextlib
 import json
 import queue
 import re
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -35,6 +33,7 @@ import zenoh
 
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, error_text, open_session
 from services.bus.security import OBSERVER
+from services.ground import lifecycle
 from services.ground.credentials import RunNotFoundError, find_run
 from services.ground.live_address import LIVE_DEFAULT
 from services.interface import TOPOLOGY, MessageError, decode, unpack_batch
@@ -150,27 +149,13 @@ def _interrupt(_signum: int, _frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-@contextlib.contextmanager
-def stop_on_signals() -> Iterator[None]:
-    """Ctrl-C, SIGTERM and SIGHUP end a tap in order (as KeyboardInterrupt), also when it
-    inherited them ignored (``ddvi monitor ... &`` in a script, which ignores SIGINT)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    stops = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-    previous = {sig: signal.signal(sig, _interrupt) for sig in stops}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
 def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None = None) -> int:
     """``ddvi monitor [KEYEXPR] {--run RUN | --hub H} [--count N] [--seconds S]``: print each
     message on the bus as one line until Ctrl-C, N messages or S seconds. Returns 0; 2 for no
     bus named, 1 for a bus that refuses or cannot be reached."""
-    with stop_on_signals():
+    # Ctrl-C, SIGTERM and SIGHUP end a tap in order, as KeyboardInterrupt, also when it
+    # inherited them ignored (``ddvi monitor ... &`` in a script)
+    with lifecycle.handling(lifecycle.STOP_SIGNALS, _interrupt):
         return _monitor(args, out)
 
 

@@ -18,19 +18,19 @@ report (``services.ground.campaign.report``) is written beside it.  docs/campaig
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import signal
 import sys
 import tomllib
 import uuid
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
 from services.config import DeploymentError, deployment_from_table, read_table
 from services.config.files import campaign_file, deployment_dirs
+from services.ground import lifecycle
 from services.ground.campaign.dispersions import (
     CampaignError,
     CampaignSpec,
@@ -157,7 +157,7 @@ def _quiet_shutdown(client: Any) -> None:
     heartbeats race the scheduler's close, and one that loses logs an ERROR with a traceback
     about a closed connection: noise once the campaign is over or stopped (a task's error
     reaches the client as its exception, not through these logs)."""
-    with contextlib.suppress(Exception):
+    with suppress(Exception):
         client.run(_silence_distributed)
         client.run(_silence_distributed, nanny=True)
 
@@ -314,17 +314,14 @@ def _stop(signum: int, _frame: Any) -> None:
 def campaign_command(args: argparse.Namespace) -> int:
     """0 when every run completed, 1 if one did not, 2 on bad input, 128 + N when stopped
     by signal N."""
-    previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
-        return _campaign(args)
+        with lifecycle.handling((signal.SIGTERM, signal.SIGHUP), _stop):
+            return _campaign(args)
     except Stopped as exc:
         end = "" if sys.stderr.isatty() else "\n"  # a plain progress line ends unterminated
         print(f"{end}ddvi campaign: stopped by {exc}; its finished runs are in the table: the "
               "same command with --resume continues it", file=sys.stderr)  # fmt: skip
         return 128 + exc.signum
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _campaign(args: argparse.Namespace) -> int:
