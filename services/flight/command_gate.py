@@ -1,0 +1,189 @@
+"""The environment's commands in force, and in lock-step its wait for them.
+
+Each deputy's commanded relative MRP (clipped to its attitude limit) is in force from the step
+its link delivers it on.  In lock-step the step at t_k waits until every controller's command
+for the step its link delay maps to (issued at T, it arrives at T + delay, so the newest that
+can act from t_k is for floor((t_k - delay) / fsw) steps) is accounted for: delivered, or
+dropped by its link or by the bus's rate budget.  A controller that is there (its liveliness
+token alive) but silent pauses the mission (said after run.command_deadline wall seconds,
+counted in paused_steps) and, past run.hang_timeout, ends it (``HangError``); one that goes
+away is waited for once, up to run.command_deadline, and its deputy holds its last command
+(docs/health.md).
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from services.flight.health import HangError, Waiting
+from services.flight.runtime import ServiceContext
+from services.interface import Message, command_topic, fault_topic
+
+OBSERVED = "observed"  # inbox tag of a command seen by the link layer
+PRESENCE = "presence"  # inbox tag of a controller's liveliness change
+LOST = "lost"  # inbox tag: the bus's rate budget dropped commands unread (a flood)
+PANEL = fault_topic("panel")  # topic of run-time panel faults
+
+STOP_POLL = 0.25
+"""Wall seconds the command wait blocks before it looks at a stop request again."""
+HANG_MARGIN = 5.0
+"""Wall seconds the environment waits for a controller past run.hang_timeout: a controller
+waiting on its own navigation gives up first and names it (``services.flight.controller``)."""
+
+
+class CommandGate:
+    """The deputies' commands in force (``sigma`` (N, 3)) and the lock-step wait for them.
+
+    Parameters
+    ----------
+    ctx : the environment's context (its bus, deployment, stop request, log).
+    inbox : where the subscriptions put ``(topic or tag, message)``: commands, commands
+        observed by the link layer, commands lost to a flood, panel faults, controllers'
+        presence.
+    present : the deputies whose controller is alive (waited for in lock-step).
+    counters : the environment's counters; the gate keeps its own among them.
+    on_fault : called with a panel fault taken from the inbox.
+    """
+
+    def __init__(
+        self,
+        ctx: ServiceContext,
+        inbox: queue.SimpleQueue,
+        present: set[str],
+        counters: dict[str, int],
+        on_fault: Callable[[Message], None],
+    ) -> None:
+        self.ctx, self.bus, self.inbox, self.present = ctx, ctx.bus, inbox, present
+        self.counters, self.on_fault = counters, on_fault
+        dep = ctx.deployment
+        self.run, self.fsw = dep.run, dep.run.fsw_period
+        self.deputies = [d.name for d in dep.deputy]
+        self.limits = np.array([d.attitude_limit for d in dep.deputy])
+        self.sigma = np.zeros((len(self.deputies), 3))  # commands in force
+        self.latest_for_t = dict.fromkeys(self.deputies, -math.inf)  # step of the one in force
+        self.seen_for_t = dict.fromkeys(self.deputies, -math.inf)  # newest accounted for
+        self.away_since: dict[str, float] = {}  # wall time each away controller went
+        self.returned_at: dict[str, float] = {}  # step at which each came back
+        # a command issued at T reaches the truth at T + the link's delay (docs/design.md,
+        # "Time")
+        self.cmd_delay = {
+            sc: self.bus.latency(f"ctrl-{sc}", command_topic(sc)) for sc in self.deputies
+        }
+
+    def expected_step(self, sc: str, t_k: float) -> float:
+        """The newest command step that can be in force from t_k on (negative: none yet)."""
+        return math.floor((t_k - self.cmd_delay[sc]) / self.fsw + 1e-9) * self.fsw
+
+    def take(self, t_k: float, wait: bool) -> None:
+        """Apply the newest command of each deputy that its link has delivered by t_k; in
+        lock-step wait until the one for the step its delay maps to is accounted for: the
+        mission pauses for a controller that is there but silent (said after
+        run.command_deadline), up to the hang timeout (``HangError``)."""
+        self.bus.pump(t_k)  # release what the links held until t_k
+        deputies, counters = self.deputies, self.counters
+        expected = {sc: self.expected_step(sc, t_k) for sc in deputies}
+        waiting = Waiting(self.run.command_deadline, self.run.hang_timeout + HANG_MARGIN)
+        while not self.ctx.stop.is_set():
+            late = [sc for sc in deputies if self.outstanding(sc, t_k, expected[sc])]
+            if wait and late and waiting.said_at(time.monotonic()):
+                counters["paused_steps"] += 1
+                names = ", ".join(f"ctrl-{sc}" for sc in late)
+                self.ctx.log("warning", f"lock-step paused at t = {t_k:.0f} s: no command from "
+                             f"{names} for {waiting.said:g} s", t_k)  # fmt: skip
+            if wait and late and waiting.over(time.monotonic()):
+                raise HangError(f"ctrl-{late[0]}", "command", t_k, self.run.hang_timeout)
+            waits = [waiting.until] if late else []
+            waits += [u for sc in deputies if (u := self.returning(sc)) is not None]
+            try:
+                if wait and waits:
+                    # in slices, so a stop request (the launcher gone, and with it the
+                    # router that would have said the controllers left) ends the wait
+                    timeout = min(max(min(waits) - time.monotonic(), 0.0), STOP_POLL)
+                    kind, msg = self.inbox.get(timeout=timeout)
+                else:
+                    kind, msg = self.inbox.get_nowait()
+            except queue.Empty:
+                if wait and waits and min(waits) > time.monotonic():
+                    continue
+                if wait and late:
+                    continue  # the hang timeout decides
+                break
+            if kind == PANEL:
+                self.on_fault(msg)
+            elif kind == PRESENCE:
+                self.on_presence(*msg, t_k)
+            elif kind == LOST:
+                self.on_lost(msg, expected)
+            else:
+                self.on_command(kind, msg, expected)
+        if wait:
+            counters["missing_commands"] += sum(
+                expected[sc] >= 0 and self.latest_for_t[sc] < expected[sc] - 1e-6 for sc in deputies
+            )
+        counters["controller_away_steps"] += len(set(deputies) - self.present)
+
+    def outstanding(self, sc: str, t_k: float, expected: float) -> bool:
+        """The step at t_k waits for the command of ``sc`` for step ``expected``."""
+        due = expected - 1e-6
+        return (
+            sc in self.present
+            and self.returned_at.get(sc, -math.inf) < t_k  # back since before this step
+            and expected >= 0
+            and self.latest_for_t[sc] < due
+            and self.seen_for_t[sc] < due
+        )
+
+    def returning(self, sc: str) -> float | None:
+        """Wall time until which to wait for an away controller to come back."""
+        if sc in self.present or sc not in self.away_since:
+            return None
+        until = self.away_since[sc] + self.run.command_deadline
+        return until if until > time.monotonic() else None
+
+    def on_command(self, kind: str, msg: Message, expected: dict[str, float]) -> None:
+        """A command delivered (put in force unless a replay), or observed by its link."""
+        counters = self.counters
+        sc = msg.body["sc"]
+        if sc not in self.latest_for_t:
+            counters["bad_commands"] += kind != OBSERVED
+            return
+        for_t = msg.body["for_t"]
+        if kind == OBSERVED:
+            self.seen_for_t[sc] = max(self.seen_for_t[sc], for_t)
+            return
+        if for_t <= self.latest_for_t[sc]:
+            counters["stale_commands"] += 1  # not newer than the one in force: a replay
+            return
+        if for_t < expected[sc] - 1e-6:
+            counters["late_commands"] += 1
+        i = self.deputies.index(sc)
+        s_cmd = msg.body["sigma"]
+        clipped = np.clip(s_cmd, -self.limits[i], self.limits[i])
+        counters["clipped_commands"] += int(np.any(clipped != s_cmd))
+        self.sigma[i] = clipped
+        self.latest_for_t[sc] = for_t
+
+    def on_lost(self, topic: str, expected: dict[str, float]) -> None:
+        """Its publisher flooded ``topic`` past its rate budget: the command the step waits
+        for may be among what was dropped unread, so it is taken as lost, as on its link (the
+        deputy holds its last command; counted missing)."""
+        sc = topic.removeprefix("cmd/").removesuffix("/att")
+        if sc in self.seen_for_t:
+            self.seen_for_t[sc] = max(self.seen_for_t[sc], expected[sc])
+
+    def on_presence(self, sc: str, up: bool, t_k: float) -> None:
+        """A controller's liveliness token came or went during the step at t_k."""
+        if sc in self.latest_for_t and up and sc not in self.present:
+            self.present.add(sc)
+            self.returned_at[sc] = t_k
+            self.ctx.log("warning", f"controller of {sc} is back at t = {t_k:.0f} s", t_k)
+        elif sc in self.latest_for_t and not up and sc in self.present:
+            self.present.discard(sc)
+            self.away_since[sc] = time.monotonic()
+            self.ctx.log("warning", f"controller of {sc} went away at t = {t_k:.0f} s; "
+                         "holding its last command", t_k)  # fmt: skip
