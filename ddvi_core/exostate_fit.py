@@ -2,7 +2,7 @@
 is solved on (:func:`fit_exosystem_input`), with the exostate's modes grouped as E couples
 them (:func:`exostate_groups`, :func:`static_groups`), fitted free or along B, and kept only
 where the data tell them from zero (a cluster-robust Wald test, the covariance of
-:func:`ddvi_core.model_fit.gain_standard_error`).  Pure functions on arrays."""
+:func:`ddvi_core.fit_uncertainty.gain_standard_error`).  Pure functions on arrays."""
 
 from __future__ import annotations
 
@@ -11,11 +11,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ddvi_core.fit_uncertainty import cluster_sums, clusters
 from ddvi_core.learning import LearningError
 from ddvi_core.model_fit import (
     IntegralData,
-    _cluster_sums,
-    _clusters,
     _column_scale,
     _full_rank_lstsq,
     interval_pairs,
@@ -55,7 +54,7 @@ def _wald_p_values(X: NDArray, y: NDArray, cluster: NDArray, groups: list[list[i
     import scipy.stats  # here: it costs a service's start-up a second
 
     theta, *_ = np.linalg.lstsq(X, y, rcond=None)
-    sums = _cluster_sums(cluster, (y - X @ theta)[:, None] * X)
+    sums = cluster_sums(cluster, (y - X @ theta)[:, None] * X)
     G = np.linalg.pinv(X.T @ X)
     cov = G @ sums.T @ sums @ G
     p_values = []
@@ -151,7 +150,7 @@ def fit_exosystem_input(
         )
     if significance > 0 and cols:
         pairs = interval_pairs(data.t, data.segment, length, stride, smoothing)
-        cluster = np.repeat(_clusters(data, pairs, 2 * (length + smoothing)), n - positions)
+        cluster = np.repeat(clusters(data, pairs, 2 * (length + smoothing)), n - positions)
         while kept:
             cols = sorted(k for g in kept for k in g)
             X = design(cols)

@@ -76,7 +76,7 @@ class LearningConfig:
     fit_smoothing: model-fit: the interval relation averaged over shifts of up to this many
     seconds (0: end points as sampled), which averages the end points' noise;
     fit_tolerance: model-fit: an attempt is accepted when the gain's predicted relative error
-    (``ddvi_core.model_fit.gain_standard_error``) is at most this (else it retries later);
+    (``ddvi_core.fit_uncertainty.gain_standard_error``) is at most this (else it retries later);
     fit_deadline_orbits, fit_deadline_tolerance: model-fit: from this orbit on (0: never) the
     tolerance is the second (a noisy window's predicted error is pessimistic);
     refresh_orbits: model-fit: refit D (A and B held) and the feedforward every this many

@@ -48,7 +48,6 @@ __all__ = [
     "ModelFitError",
     "ModelFitResult",
     "fit_linear_model",
-    "gain_standard_error",
     "gains_from_model",
     "interval_regressors",
     "learn_by_model_fit",
@@ -431,74 +430,6 @@ def learn_by_model_fit(
     for the gains (:func:`fit_linear_model`, then :func:`gains_from_model`)."""
     model = fit_linear_model(data, length, stride, translation, smoothing, positions=positions)
     return gains_from_model(model, Q, R, C, E, F)
-
-
-def _clusters(data: IntegralData, pairs: NDArray, cluster_s: float) -> NDArray:
-    """The cluster (rho,) of each interval: ``cluster_s`` s of interval starts each.
-    Overlapping intervals and a filtered estimate's coloured error make neighbouring rows
-    dependent, rows that far apart nearly independent."""
-    start = data.t[pairs[:, 0]]
-    return np.floor((start - start[0]) / cluster_s).astype(int)
-
-
-def _cluster_sums(cluster: NDArray, score: NDArray) -> NDArray:
-    """The rows' scores (rows, k) summed per cluster (clusters, k)."""
-    sums = np.zeros((cluster[-1] + 1, score.shape[1]))
-    np.add.at(sums, cluster, score)
-    return sums
-
-
-def gain_standard_error(
-    data: IntegralData,
-    K: ArrayLike,
-    Q: ArrayLike,
-    R: ArrayLike,
-    *,
-    length: float,
-    stride: float,
-    translation: ArrayLike | None = None,
-    smoothing: float = 0.0,
-    positions: int = 0,
-    draws: int = 32,
-    seed: int = 0,
-) -> float:
-    """The predicted relative error of the gain K (m, n) fitted on ``data``: the RMS of
-    |K_i - K| / |K| over ``draws`` gains K_i of models drawn from the fit's parameter
-    covariance (a fixed ``seed``: the same data give the same answer); inf when a draw has
-    no stabilising gain.
-
-    The covariance is the cluster-robust sandwich (Phi'Phi)^-1 (sum_c s_c s_c') (Phi'Phi)^-1
-    with clusters of 2 (length + smoothing) s of interval starts and s_c the sum over a
-    cluster of the rows' residual times regressor: overlapping intervals share their
-    noise, and a filtered navigation estimate's error is coloured, so the rows are not
-    independent, but clusters that far apart nearly are.  It holds for noise and for model
-    error alike, and measured on the default mission it is 1x to 10x the true error."""
-    dx, phi, N = _design(data, length, stride, translation, smoothing, positions)
-    rho, p = phi.shape
-    n, m = dx.shape[1], np.shape(K)[0]
-    if rho <= p:
-        return math.inf
-    scale = _column_scale(phi)
-    Z = phi / scale
-    theta, *_ = np.linalg.lstsq(Z, dx, rcond=None)  # (p, n)
-    pairs = interval_pairs(data.t, data.segment, length, stride, smoothing)
-    score = np.einsum("ij,ik->ijk", dx - Z @ theta, Z).reshape(rho, n * p)
-    sums = _cluster_sums(_clusters(data, pairs, 2 * (length + smoothing)), score)
-    G = np.kron(np.eye(n), np.linalg.pinv(Z.T @ Z))
-    cov = G @ sums.T @ sums @ G
-    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
-    noise = np.random.default_rng(seed).standard_normal((draws, n * p))
-    K = np.asarray(K, dtype=float)
-    errors = []
-    for dtheta in (noise * np.sqrt(np.clip(w, 0, None))) @ V.T:
-        t = (theta + dtheta.reshape(n, p).T) / scale[:, None]
-        A, B, _ = _model(t, N, m, positions)
-        try:
-            Ki = solve_lqr(A, B, Q, R).K
-        except NotStabilisingError:
-            return math.inf
-        errors.append(np.linalg.norm(Ki - K) / np.linalg.norm(K))
-    return float(np.sqrt(np.mean(np.square(errors))))
 
 
 def _columns(data: IntegralData) -> tuple[NDArray, ...]:

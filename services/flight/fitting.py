@@ -12,7 +12,7 @@ Two fits of the same intervals (``ddvi_core.model_fit``):
   position rows of B and D, noise there, would otherwise enter U directly.
 
 An attempt is accepted when the gain's predicted relative error
-(``ddvi_core.model_fit.gain_standard_error``) is at most the tolerance in force:
+(``ddvi_core.fit_uncertainty.gain_standard_error``) is at most the tolerance in force:
 ``fit_tolerance``, or from ``fit_deadline_orbits`` on (when set) ``fit_deadline_tolerance``.
 """
 
@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ddvi_core.exostate_fit import exostate_groups, fit_exosystem_input, static_groups
+from ddvi_core.fit_uncertainty import gain_standard_error
 from ddvi_core.learning import LearningError
 from ddvi_core.learning_config import LearningConfig
 from ddvi_core.lqr import NotStabilisingError, solve_lqr
@@ -32,7 +33,6 @@ from ddvi_core.model_fit import (
     IntegralData,
     ModelFitError,
     fit_linear_model,
-    gain_standard_error,
     interval_regressors,
     learn_by_model_fit,
     prediction_residual,

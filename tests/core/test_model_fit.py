@@ -12,6 +12,7 @@ import pytest
 import scipy.linalg
 
 from ddvi_core.exostate_fit import exostate_groups, fit_exosystem_input, static_groups
+from ddvi_core.fit_uncertainty import gain_standard_error
 from ddvi_core.learning import LearningError, RankDeficientError
 from ddvi_core.lqr import solve_lqr
 from ddvi_core.model_fit import (
@@ -20,7 +21,6 @@ from ddvi_core.model_fit import (
     IntegralHistory,
     ModelFitError,
     fit_linear_model,
-    gain_standard_error,
     gains_from_model,
     interval_pairs,
     learn_by_model_fit,
