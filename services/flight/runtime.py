@@ -17,6 +17,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import contextlib
 import ctypes
 import logging
 import signal
@@ -132,6 +133,32 @@ monitor writes the run's report first); any other service: ``ORPHAN_GRACE_DEFAUL
 ORPHAN_GRACE_DEFAULT = 10.0
 
 
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+"""What asks a process of the run to stop: a service (``ServiceContext.stop``), ``ddvi run``."""
+
+
+def stop_on_signals(stop: threading.Event, signals: tuple[int, ...] = STOP_SIGNALS) -> None:
+    """Have ``signals`` set ``stop`` (main thread only).  Not from the handler itself: Python
+    runs a handler in the main thread between any two bytecodes, also while that thread holds
+    the Event's lock (inside ``Event.set`` when a second signal comes, as a launcher's death
+    and the router's with it can send), and ``Event.set`` would then wait on that lock forever.
+    The handler only writes a byte to a pipe; a thread that reads it sets ``stop``."""
+    readable, writable = os.pipe()
+    os.set_blocking(writable, False)
+
+    def on_signal(_signum: int, _frame: Any) -> None:
+        with contextlib.suppress(OSError):  # the pipe full: a stop is on its way already
+            os.write(writable, b"\0")
+
+    def relay() -> None:
+        os.read(readable, 1)
+        stop.set()
+
+    threading.Thread(target=relay, name="stop-signals", daemon=True).start()
+    for sig in signals:
+        signal.signal(sig, on_signal)
+
+
 def stop_with_launcher(name: str) -> None:
     """Linux: have the kernel send this process SIGTERM (a stop request) when the launcher
     that started it dies, even by SIGKILL (``prctl(PR_SET_PDEATHSIG)``); a launcher already
@@ -233,8 +260,7 @@ def run_service(
         print(f"{args.name}: {exc}", file=sys.stderr)
         return 2
     stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     stop_with_launcher(args.name)
     try:
         creds = load_credentials(args.credentials) if args.credentials else None

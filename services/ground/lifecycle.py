@@ -27,10 +27,10 @@ from typing import Any
 import zenoh
 
 from services.bus import watch_alive
+from services.flight.runtime import STOP_SIGNALS
 from services.ground.outcome import flood_text
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_DEGRADED = 0, 1, 2, 3
-STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
 LOG_TAIL = 8  # a crashed service's last log lines the launcher shows
 POLL = 0.05  # s between looks at the children while they start
 
