@@ -20,7 +20,7 @@ from services.bus.links import (
     rule_latency,
     select_rule,
 )
-from services.bus.liveliness import wait_for_alive, wait_for_gone, watch_alive
+from services.bus.liveliness import router_answers, wait_for_alive, wait_for_gone, watch_alive
 from services.bus.session import (
     DEFAULT_HUB,
     EPHEMERAL_LOOPBACK,
@@ -53,6 +53,7 @@ __all__ = [
     "message_count",
     "open_session",
     "queue_handler",
+    "router_answers",
     "rule_latency",
     "select_rule",
     "wait_for_alive",

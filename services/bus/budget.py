@@ -111,6 +111,11 @@ class RateBudget:
             self.dropped[owner] = self.dropped.get(owner, 0) + n
             return False
 
+    def dropped_from(self, publisher: str) -> int:
+        """Messages of ``publisher`` dropped so far: how far its sequence numbers may have run
+        ahead of what the receiver saw."""
+        return self.dropped.get(publisher, 0)
+
     def counters(self) -> dict[str, int]:
         """``flood.<publisher>``: the messages dropped from each publisher so far."""
         with self._lock:

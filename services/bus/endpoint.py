@@ -17,6 +17,7 @@ Counters and sequence numbers are guarded by locks; nothing raised in a callback
 from __future__ import annotations
 
 import queue
+import secrets
 import threading
 from collections.abc import Collection, Iterable, Iterator, Mapping
 from contextlib import contextmanager
@@ -97,6 +98,9 @@ class Bus:
         self._pub_lock = threading.RLock()  # seq counters and publishers
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._seq: dict[str, int] = {}  # topic -> next seq (its keys: topics checked once)
+        # drawn anew each time a bus opens: a receiver tells a restarted publisher, counting
+        # from 0 again, by its new boot, not by how its sequence numbers look
+        self.boot = secrets.randbits(63)
         self._batching = 0  # depth of open ``batch()`` blocks
         self._held: dict[str, list[bytes]] = {}  # topic -> payloads of the open batch
         self._sent = 0  # under _pub_lock: publishing takes one lock a message
@@ -168,7 +172,7 @@ class Bus:
             if self._closed:
                 raise RuntimeError(f"bus of {self.service} is closed")
             seq = self._seq.get(topic, 0)
-            payload = encode(schema, body, seq=seq, t=t, src=self.service)
+            payload = encode(schema, body, seq=seq, t=t, src=self.service, boot=self.boot)
             self._seq[topic] = seq + 1
             if self._batching:
                 held = self._held.setdefault(topic, [])
@@ -236,8 +240,11 @@ class Bus:
         through ``link`` if given, else through the deployment's matching link rule, and what
         the link lets through now is handed to ``handler(topic, message)``; items held by a
         link are delivered by ``pump``.  Then ``observe(topic, message)``, if given, sees every
-        accepted message, whatever the link did with it (delivered, held or dropped): a
-        lock-step loop uses it to know that a message it waits for is accounted for.
+        message from its topic's publisher, whatever the link did with it (delivered, held or
+        dropped), and also one its sequence window refused: a lock-step loop uses it to know
+        that a message it waits for is accounted for.  A sequence number proves nothing of who
+        sent it (a stolen credential can take the genuine message's number first), so a
+        refusal by number must not make a lock-step wait for a message that has come.
         ``lost(topic)``, if given, is told (once a key per step of the receiver's clock) that
         the bus's rate budget dropped messages on ``topic`` unread: what a lock-step loop
         waits for may be among them.

@@ -1,19 +1,24 @@
-"""Receiver guards: the anti-replay window a subscriber keeps per (publisher, topic), so each
-message is delivered once whatever the link or an attacker repeats; and the origin check
+"""Receiver guards: the anti-replay window a subscriber keeps per (publisher, topic, boot), so
+each message is delivered once whatever the link or an attacker repeats, and no one message can
+move the window past the genuine traffic; and the origin check
 (``check_origin``), so that a message is taken only from its topic's owner, only when its body
 names what its topic names, and only for a time inside the mission's window."""
 
 from __future__ import annotations
-
-import math
 
 from services.interface import Message
 from services.interface.topics import identity_mismatch, may_publish
 
 REPLAY_WINDOW = 256
 """Sequence numbers a subscriber remembers per (publisher, topic) to reject duplicates."""
-SEQUENCE_REASONS = ("duplicate", "stale")
+SEQUENCE_REASONS = ("duplicate", "stale", "jump")
 """Why a well-formed message is refused by its sequence number (see ``SequenceGuard``)."""
+JUMP_CONFIRM = 3
+"""Consecutive sequence numbers past a window's reach that move the window there: a publisher
+whose messages a receiver really missed goes on counting from where it is, one message that
+claims a far sequence number does not."""
+BOOTS_KEPT = 16
+"""Boots a receiver keeps a window for per (publisher, topic), the least recently heard out."""
 ORIGIN_REASONS = ("src", "identity", "time")
 """Why a well-formed message is refused by its origin (see ``check_origin``)."""
 TIME_FIELDS = ("for_t",)
@@ -47,53 +52,76 @@ def check_origin(
 
 
 class SequenceGuard:
-    """Anti-replay window of one subscriber for one (publisher, topic): like a CCSDS or IPsec
-    receiver, it accepts each sequence number once, in any order within ``window`` of the
-    highest seen.  ``check(seq, t)`` returns None (accept) or why not: ``"duplicate"`` (seen
+    """Anti-replay window of one subscriber for one (publisher, topic, boot): like a CCSDS or
+    IPsec receiver, it accepts each sequence number once, in any order within ``window`` of the
+    highest seen.  ``check(seq)`` returns None (accept) or why not: ``"duplicate"`` (seen
     already: a replay, or a copy the link duplicated), ``"stale"`` (older than the window: a
-    replay of old traffic).  A publisher's time never goes back as its seq goes up, so a seq
-    at or below the highest with a time after the newest is a restarted publisher counting
-    from 0 again: the window starts over."""
+    replay of old traffic), ``"jump"`` (more than ``ahead + slack`` past the highest: a number
+    no publisher of this boot has reached; it never becomes the new mark, so one message
+    cannot make the genuine traffic look stale).  ``slack`` is what the receiver knows it
+    missed from the publisher (its rate budget's drops); ``JUMP_CONFIRM`` consecutive numbers
+    past the reach move the window there.  ``ahead=None`` takes any step ahead (behind a link
+    model, whose losses are the receiver's own)."""
 
-    def __init__(self, window: int = REPLAY_WINDOW) -> None:
+    def __init__(self, window: int = REPLAY_WINDOW, ahead: int | None = REPLAY_WINDOW) -> None:
         if window < 1:
             raise ValueError(f"SequenceGuard.window: expected >= 1, got {window}")
-        self.window = window
+        if ahead is not None and ahead < 1:
+            raise ValueError(f"SequenceGuard.ahead: expected >= 1 or None, got {ahead}")
+        self.window, self.ahead = window, ahead
         self.highest = -1
-        self.newest_t = -math.inf
         self._seen = 0  # bit k: highest - k was accepted (k < window), as RFC 4303's bitmap
         self._mask = (1 << window) - 1
+        self._beyond: tuple[int, int] | None = None  # (last, how many) consecutive jumps
 
-    def check(self, seq: int, t: float) -> str | None:
+    def check(self, seq: int, slack: int = 0) -> str | None:
         highest = self.highest
-        if seq <= highest and t > self.newest_t:
-            highest = self.highest = -1  # the publisher restarted
+        if highest >= 0 and self.ahead is not None and seq - highest > self.ahead + slack:
+            if not self._confirmed(seq):
+                return "jump"
+            highest = self.highest = seq - 1  # the publisher is there: the window follows
             self._seen = 0
         elif seq <= highest - self.window:
             return "stale"
+        self._beyond = None
         if seq > highest:
             ahead = seq - highest
             self._seen = ((self._seen << ahead) | 1) & self._mask if ahead < self.window else 1
             self.highest = seq
-        else:
-            bit = 1 << (highest - seq)
-            if self._seen & bit:
-                return "duplicate"
-            self._seen |= bit
-        if t > self.newest_t:
-            self.newest_t = t
+            return None
+        bit = 1 << (highest - seq)
+        if self._seen & bit:
+            return "duplicate"
+        self._seen |= bit
         return None
+
+    def _confirmed(self, seq: int) -> bool:
+        """Whether ``seq``, past the window's reach, ends ``JUMP_CONFIRM`` consecutive ones."""
+        last, run = self._beyond or (seq - 1, 0)
+        run = run + 1 if seq == last + 1 else 1
+        self._beyond = (seq, run)
+        return run >= JUMP_CONFIRM
 
 
 class SequenceGuards:
-    """One ``SequenceGuard`` per (publisher, topic), made on first use."""
+    """The ``SequenceGuard`` of each (publisher, topic, boot), made on first use; at most
+    ``BOOTS_KEPT`` boots per (publisher, topic), the least recently heard forgotten first.  A
+    restarted publisher counts from 0 again under a new boot: it gets a window of its own, and
+    a message that claims a new boot cannot touch the window of the one in flight."""
 
-    def __init__(self) -> None:
-        self._guards: dict[tuple[str, str], SequenceGuard] = {}
+    def __init__(self, ahead: int | None = REPLAY_WINDOW) -> None:
+        self.ahead = ahead
+        self._boots: dict[tuple[str, str], dict[int, SequenceGuard]] = {}
 
-    def check(self, message: Message, topic: str) -> str | None:
-        """``SequenceGuard.check`` of the message's publisher on ``topic``."""
-        guard = self._guards.get((message.src, topic))
+    def check(self, message: Message, topic: str, slack: int = 0) -> str | None:
+        """``SequenceGuard.check`` of the message's publisher, topic and boot."""
+        boots = self._boots.get((message.src, topic))
+        if boots is None:
+            boots = self._boots[(message.src, topic)] = {}
+        guard = boots.pop(message.boot, None)  # re-inserted: the most recently heard is last
         if guard is None:
-            guard = self._guards[(message.src, topic)] = SequenceGuard()
-        return guard.check(message.seq, message.t)
+            guard = SequenceGuard(ahead=self.ahead)
+            if len(boots) >= BOOTS_KEPT:
+                del boots[next(iter(boots))]
+        boots[message.boot] = guard
+        return guard.check(message.seq, slack)

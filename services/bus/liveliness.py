@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterable
 from fnmatch import fnmatchcase
 from typing import Any
@@ -86,3 +87,25 @@ def wait_for_gone(session: zenoh.Session, run: str, service: str, timeout: float
         return gone.wait(timeout)
     finally:
         subscriber.undeclare()
+
+
+ROUTER_PROBE = 2.0
+"""Wall seconds a service gives the run's router to answer a liveliness query before it takes
+the router for frozen."""
+
+
+def router_answers(
+    session: zenoh.Session, run: str, service: str, timeout: float = ROUTER_PROBE
+) -> bool:
+    """Whether the run's router answers, within ``timeout`` s, a liveliness query for
+    ``service``'s token.  A router's answer ends the query at once, whatever it holds; a query
+    to a frozen router (stopped, or its host gone) runs until its timeout, with at most the
+    asking session's own tokens."""
+    start = time.monotonic()
+    try:
+        for _ in session.liveliness().get(key_prefix(run) + alive_topic(service), timeout=timeout):
+            pass
+    except Exception:  # a session that cannot even ask has lost its router too
+        log.exception("liveliness query for %s failed", service)
+        return False
+    return time.monotonic() - start < 0.75 * timeout

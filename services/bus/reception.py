@@ -37,7 +37,11 @@ _ORIGIN_TEXT = {
     "identity": "its body names another than its topic does",
     "time": "a time outside the mission's window",
 }
-_SEQUENCE_TEXT = {"duplicate": "seen already", "stale": "older than its window"}
+_SEQUENCE_TEXT = {
+    "duplicate": "seen already",
+    "stale": "older than its window",
+    "jump": "past any number its publisher has reached",
+}
 
 
 class Reception:
@@ -100,10 +104,10 @@ class Route:
     observe: Handler | None = None
     index: int = 0  # the subscription's number on its bus (seeds its link models)
     models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
-    guards: SequenceGuards = field(default_factory=SequenceGuards)
-    # the same window on what comes off the wire, before the link and the observer: a replay
-    # is refused before it can touch a lock-step wait (the one above refuses what the link
-    # itself duplicates)
+    # what the link lets through, each once: its own losses may skip any number ahead
+    guards: SequenceGuards = field(default_factory=lambda: SequenceGuards(ahead=None))
+    # the window on what comes off the wire, before the link: a replay, or a number past what
+    # its publisher has reached, never reaches the handler (the observer still accounts for it)
     wire: SequenceGuards = field(default_factory=SequenceGuards)
     # re-entrant: a handler may change the bus's link rules (a run-time link fault)
     lock: threading.RLock = field(default_factory=threading.RLock)
@@ -194,11 +198,12 @@ class Route:
                 rx.budget.advance(message.t)
         if not messages:
             return
-        fresh: list[Message] = []  # what passes the wire's replay window: all that acts
+        fresh: list[Message] = []  # what passes the wire's replay window: all that is handled
         try:
             with self.lock:
                 for message in messages:
-                    if (why := self.wire.check(message, topic)) is None:
+                    missed = rx.budget.dropped_from(message.src) if rx.budget else 0
+                    if (why := self.wire.check(message, topic, missed)) is None:
                         fresh.append(message)
                     else:
                         rx.reject(key, why, f"seq {message.seq} from {message.src} at t = "
@@ -222,9 +227,9 @@ class Route:
                 # delivered under the lock (handlers only queue), so that what one thread's
                 # offer releases is queued before another thread's pump returns
                 self.deliver(items, received=len(fresh))
-        finally:  # whatever happened above, each accepted message is accounted for
+        finally:  # whatever happened above, each message from its publisher is accounted for
             if self.observe is not None:
-                for message in fresh:
+                for message in messages:
                     try:
                         self.observe(topic, message)
                     except Exception:

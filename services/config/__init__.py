@@ -9,20 +9,33 @@ from services.config.deployment import (
     Deployment,
     DeploymentError,
     Deputy,
+    Fault,
     Orbit,
     controller_label,
 )
 from services.config.files import load_deployment, read_table, resolve, write_deployment
-from services.config.validation import check_panel, deployment_from_table
+from services.config.validation import (
+    check_fault,
+    check_kill,
+    check_link_fault,
+    check_panel,
+    deployment_from_table,
+    link_from_params,
+)
 
 __all__ = [
     "Deployment",
     "DeploymentError",
     "Deputy",
+    "Fault",
     "Orbit",
+    "check_fault",
+    "check_kill",
+    "check_link_fault",
     "check_panel",
     "controller_label",
     "deployment_from_table",
+    "link_from_params",
     "load_deployment",
     "read_table",
     "resolve",

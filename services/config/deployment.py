@@ -59,8 +59,8 @@ class Run:
     rate: float = 1.0  # realtime: simulated seconds per wall second
     command_deadline: float = 10.0  # lockstep: wall seconds before a missing command is said
     hang_timeout: float = 60.0  # lockstep: wall seconds a step waits for a service at most
-    nav_stale_limit: float = 0.0  # realtime: navigation age (s) past which a safe attitude is
-    # flown; 0: two flight-software steps
+    nav_stale_limit: float = 0.0  # navigation age (s) past which a controller flies the safe
+    # attitude; 0: two flight-software steps
     startup_timeout: float = 60.0  # wall seconds for every service to come alive
     output: str = "runs"  # where run folders (recording, report) are written
     seed: int = 1

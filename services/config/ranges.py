@@ -15,6 +15,7 @@ import re
 from collections.abc import Iterable
 
 from ddvi_core.constants import MU_EARTH, R_EARTH
+from services.bus import LinkSpec
 from services.config.deployment import Deployment, DeploymentError, Deputy, Orbit
 
 MAX_DEPUTIES = 100
@@ -24,6 +25,9 @@ MAX_ORBITS = 10_000.0
 MAX_RADIUS = 1e9  # m: beyond the Moon's orbit, no drag, no rendezvous by drag
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]*):(\d+)$")
 RUN_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
+MAX_POSITION_BIAS = 1e7  # m: a navigation bias, the deputy's or a bias fault's
+MAX_VELOCITY_BIAS = 1e4  # m/s
+MAX_AREA_FACTOR = 100.0  # a facet's true area over the nominal: the deputy's or a panel fault's
 
 
 def within(where: str, value: float, lo: float, hi: float, *, open_lo: bool = False) -> None:
@@ -39,6 +43,14 @@ def within(where: str, value: float, lo: float, hi: float, *, open_lo: bool = Fa
 def _all_within(where: str, values: Iterable[float], lo: float, hi: float, **kw: bool) -> None:
     for k, v in enumerate(values):
         within(f"{where}[{k}]", v, lo, hi, **kw)
+
+
+def check_bias(where: str, position: Iterable[float], velocity: Iterable[float]) -> None:
+    """A navigation bias (a deputy's ``navigation`` or a bias fault, scheduled or from the
+    ground): ``position_bias`` m and ``velocity_bias`` m/s, each component finite and within
+    :data:`MAX_POSITION_BIAS` and :data:`MAX_VELOCITY_BIAS`."""
+    _all_within(f"{where}.position_bias", position, -MAX_POSITION_BIAS, MAX_POSITION_BIAS)
+    _all_within(f"{where}.velocity_bias", velocity, -MAX_VELOCITY_BIAS, MAX_VELOCITY_BIAS)
 
 
 def check_orbit(where: str, o: Orbit, floor: float) -> None:
@@ -110,12 +122,11 @@ def _check_deputy_ranges(w: str, d: Deputy, dep: Deployment) -> None:
     """One deputy's orbit, slot, panel, navigation and learning numbers."""
     check_orbit(f"{w}.orbit", d.orbit, dep.environment.min_altitude)
     within(f"{w}.y_ref", d.y_ref, -1e7, 1e7)
-    within(f"{w}.area_factor", d.area_factor, 0.0, 100.0, open_lo=True)
+    within(f"{w}.area_factor", d.area_factor, 0.0, MAX_AREA_FACTOR, open_lo=True)
     nav = d.navigation
     within(f"{w}.navigation.position_noise", nav.position_noise, 0.0, 1e6)
     within(f"{w}.navigation.velocity_noise", nav.velocity_noise, 0.0, 1e3)
-    _all_within(f"{w}.navigation.position_bias", nav.position_bias, -1e7, 1e7)
-    _all_within(f"{w}.navigation.velocity_bias", nav.velocity_bias, -1e4, 1e4)
+    check_bias(f"{w}.navigation", nav.position_bias, nav.velocity_bias)
     within(f"{w}.navigation.seed", nav.seed, 0, MAX_SEED)
     lrn, where = d.learning, f"{w}.learning"
     within(f"{where}.seed", lrn.seed, 0, MAX_SEED)
@@ -142,15 +153,28 @@ def check_deputy_ranges(dep: Deployment) -> None:
         _check_deputy_ranges(f"deputy[{k}]", d, dep)
 
 
+def mission_seconds(dep: Deployment) -> float:
+    """The mission's length (s): its whole flight-software steps, as services.model.duration."""
+    period = 2.0 * math.pi * math.sqrt(dep.chief.a**3 / MU_EARTH)
+    return math.floor(dep.run.orbits * period / dep.run.fsw_period + 1e-9) * dep.run.fsw_period
+
+
+def check_link_latency(where: str, link: LinkSpec, duration: float) -> None:
+    """A link's delay + jitter shorter than the mission (``duration`` s): a [[link]], or a link
+    impaired at run time (``services.config.validation.check_link_fault``)."""
+    latency = link.delay + link.jitter
+    if not latency < duration:
+        raise DeploymentError(
+            f"{where}: delay + jitter = {latency:g} s is not shorter than the mission "
+            f"({duration:.0f} s): every message on it would be lost; give a delay + jitter "
+            f"below {duration:.0f} s"
+        )
+
+
 def check_link_ranges(dep: Deployment, duration: float) -> None:
     """[[link]] and [[restart]]: delays shorter than the mission, bounded restarts."""
     for k, link in enumerate(dep.link):
-        latency = link.delay + link.jitter
-        if not latency < duration:
-            raise DeploymentError(
-                f"link[{k}]: delay + jitter = {latency:g} s is not shorter than the mission "
-                f"({duration:.0f} s): every message on it would be lost"
-            )
+        check_link_latency(f"link[{k}]", link, duration)
     for k, r in enumerate(dep.restart):
         within(f"restart[{k}].max_restarts", r.max_restarts, 0, 1000)
 
@@ -169,6 +193,4 @@ def check_ranges(dep: Deployment) -> None:
             f"flight-software step (run.fsw_period = {r.fsw_period:g} s)"
         )
     check_deputy_ranges(dep)
-    # whole flight-software steps, as services.model.duration
-    steps = math.floor(dep.run.orbits * period / dep.run.fsw_period + 1e-9)
-    check_link_ranges(dep, steps * dep.run.fsw_period)
+    check_link_ranges(dep, mission_seconds(dep))

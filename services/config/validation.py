@@ -8,7 +8,7 @@ names that exist.  :data:`CHECKS` runs them in order; each raises DeploymentErro
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import fields, replace
 from fnmatch import fnmatchcase
 from typing import Any
@@ -23,10 +23,27 @@ from services.config.deployment import (
     DeploymentError,
     Deputy,
     Fault,
+    Link,
 )
-from services.config.ranges import check_ranges
+from services.config.ranges import (
+    MAX_AREA_FACTOR,
+    check_bias,
+    check_link_latency,
+    check_ranges,
+    mission_seconds,
+)
 
-__all__ = ["CHECKS", "check_panel", "deployment_from_table", "validate"]
+__all__ = [
+    "CHECKS",
+    "UNKILLABLE",
+    "check_fault",
+    "check_kill",
+    "check_link_fault",
+    "check_panel",
+    "deployment_from_table",
+    "link_from_params",
+    "validate",
+]
 
 DEPLOYMENT_KEYS = tuple(f.name for f in fields(Deployment) if f.name != "path")
 """The top-level keys of a deployment file (``path`` is where it was read from)."""
@@ -243,27 +260,50 @@ def _matches_a_service(where: str, pattern: str, services: list[str]) -> list[st
     return matched
 
 
+def check_link(dep: Deployment, w: str, link: Link) -> None:
+    """One link's globs: they name services of ``dep``; never the truth to navigation, nor
+    the monitor.  (Its numbers are LinkSpec's own checks, its latency the ranges'.)"""
+    services = dep.services
+    for key in ("publisher", "subscriber"):
+        _matches_a_service(f"{w}.{key}", getattr(link, key), services)
+    if any(impairs_truth(link.publisher, s) for s in services if fnmatchcase(s, link.subscriber)):
+        raise DeploymentError(
+            f"{w}: impairs the environment's truth to navigation "
+            f"({link.publisher!r} -> {link.subscriber!r}); impair navigation -> controller "
+            '(publisher = "nav-*") or the commands (topic = "cmd/*/att") instead'
+        )
+    if link.subscriber == "monitor":
+        raise DeploymentError(
+            f"{w}.subscriber: the monitor records what is published, unimpaired; impair "
+            "the links between flight services"
+        )
+
+
 def check_links(dep: Deployment) -> None:
     """[[link]]: globs that name services; never the truth to navigation, nor the monitor.
     (The link parameters are checked when the table is read: LinkSpec's own checks.)"""
-    services = dep.services
     for k, link in enumerate(dep.link):
-        w = f"link[{k}]"
-        for key in ("publisher", "subscriber"):
-            _matches_a_service(f"{w}.{key}", getattr(link, key), services)
-        if any(
-            impairs_truth(link.publisher, s) for s in services if fnmatchcase(s, link.subscriber)
-        ):
-            raise DeploymentError(
-                f"{w}: impairs the environment's truth to navigation "
-                f"({link.publisher!r} -> {link.subscriber!r}); impair navigation -> controller "
-                '(publisher = "nav-*") or the commands (topic = "cmd/*/att") instead'
-            )
-        if link.subscriber == "monitor":
-            raise DeploymentError(
-                f"{w}.subscriber: the monitor records what is published, unimpaired; impair "
-                "the links between flight services"
-            )
+        check_link(dep, f"link[{k}]", link)
+
+
+def link_from_params(
+    publisher: Any, subscriber: Any, topic: Any, params: Mapping[str, Any]
+) -> Link:
+    """The link a run-time link fault impairs (``ddvi fault RUN link``: the publisher and
+    subscriber globs, the topic glob, ``params`` the LinkSpec's numbers), read as a [[link]]
+    table is: a wrong type or a number out of range raises DeploymentError naming the key
+    (``link.loss: expected a probability in [0, 1], got 2.0``)."""
+    table = {"publisher": publisher, "subscriber": subscriber, "topic": topic, **params}
+    return from_table(Link, table, where="link", error=DeploymentError)
+
+
+def check_link_fault(dep: Deployment, link: Link) -> None:
+    """A link impaired at run time, against the run's deployment ``dep``: what a [[link]] of it
+    must satisfy (delay + jitter shorter than the mission, globs naming its services, never
+    the truth to navigation nor the monitor).  The one check of ``ddvi fault RUN link`` and of
+    the fault message each service receives; raises DeploymentError saying what to change."""
+    check_link_latency("link", link, mission_seconds(dep))
+    check_link(dep, "link", link)
 
 
 def check_restarts(dep: Deployment) -> None:
@@ -288,9 +328,10 @@ def check_restarts(dep: Deployment) -> None:
 
 
 def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
-    """Raise ValueError unless a panel fault's values are numbers in range (area_factor finite
-    and > 0, normal_angle in (0, 90) deg), at least one of them given: the one check of the
-    deployment file, ``ddvi fault`` and the environment's run-time fault messages."""
+    """Raise ValueError unless a panel fault's values are numbers in range (area_factor in
+    (0, 100] as a deputy's, normal_angle in (0, 90) deg), at least one of them given: the one
+    check of the deployment file, ``ddvi fault`` and the environment's run-time fault
+    messages."""
     if area_factor is None and normal_angle is None:
         raise ValueError("a panel fault changes area_factor, normal_angle or both: give one")
     for value in (area_factor, normal_angle):
@@ -298,8 +339,10 @@ def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
             raise ValueError(
                 f"area_factor and normal_angle are numbers, got {value!r} ({type(value).__name__})"
             )
-    if area_factor is not None and not (math.isfinite(area_factor) and area_factor > 0):
-        raise ValueError(f"area_factor must be finite and > 0, got {area_factor}")
+    if area_factor is not None and not 0 < area_factor <= MAX_AREA_FACTOR:
+        raise ValueError(
+            f"area_factor must lie in (0, {MAX_AREA_FACTOR:g}] (as a deputy's), got {area_factor}"
+        )
     if normal_angle is not None and not (0 < normal_angle < 90):
         raise ValueError(
             f"normal_angle must lie in (0, 90) deg (the facet normal in the body x-y plane), "
@@ -309,7 +352,7 @@ def check_panel(area_factor: float | None, normal_angle: float | None) -> None:
 
 def _check_fault_values(w: str, f: Fault, backend: str) -> None:
     """One fault's kind-specific values: a panel's area or angle (built-in truth only), the
-    biases."""
+    biases (a navigation bias's range)."""
     if f.kind == "panel":
         try:
             check_panel(f.area_factor, f.normal_angle)
@@ -320,9 +363,9 @@ def _check_fault_values(w: str, f: Fault, backend: str) -> None:
             f"{w}: area_factor and normal_angle belong to panel faults, not {f.kind!r}"
         )
     for key in ("position_bias", "velocity_bias"):
-        values = getattr(f, key)
-        if len(values) != 3 or not all(math.isfinite(v) for v in values):
-            raise DeploymentError(f"{w}.{key}: expected 3 finite values")
+        if len(getattr(f, key)) != 3:
+            raise DeploymentError(f"{w}.{key}: expected 3 values (Hill x, y, z)")
+    check_bias(w, f.position_bias, f.velocity_bias)
     if f.kind == "panel" and backend == "basilisk":
         raise DeploymentError(
             f"{w}: panel faults need the built-in truth (Basilisk 2.12's "
@@ -330,23 +373,49 @@ def _check_fault_values(w: str, f: Fault, backend: str) -> None:
         )
 
 
+def check_fault(dep: Deployment, w: str, f: Fault) -> None:
+    """One fault, whenever it comes: a known kind, a deputy of ``dep``, values in range.  A
+    [[fault]] (``check_faults`` adds its time), and the one check of ``ddvi fault RUN
+    panel|bias`` against the run's deployment."""
+    names = [d.name for d in dep.deputy]
+    if f.kind not in FAULT_KINDS:
+        raise DeploymentError(f"{w}.kind: expected one of {', '.join(FAULT_KINDS)}, got {f.kind!r}")
+    if f.deputy not in names:
+        raise DeploymentError(f"{w}.deputy: {f.deputy!r} is not one of {', '.join(names)}")
+    _check_fault_values(w, f, dep.environment.backend)
+
+
 def check_faults(dep: Deployment) -> None:
     """[[fault]]: a known kind, an existing deputy, a time within the run, values in range."""
-    names = [d.name for d in dep.deputy]
     for k, f in enumerate(dep.fault):
         w = f"fault[{k}]"
-        if f.kind not in FAULT_KINDS:
-            raise DeploymentError(
-                f"{w}.kind: expected one of {', '.join(FAULT_KINDS)}, got {f.kind!r}"
-            )
-        if f.deputy not in names:
-            raise DeploymentError(f"{w}.deputy: {f.deputy!r} is not one of {', '.join(names)}")
         if not (math.isfinite(f.at_orbits) and 0 <= f.at_orbits < dep.run.orbits):
             raise DeploymentError(
                 f"{w}.at_orbits: must lie in [0, run.orbits = {dep.run.orbits:g}), "
                 f"got {f.at_orbits}"
             )
-        _check_fault_values(w, f, dep.environment.backend)
+        check_fault(dep, w, f)
+
+
+UNKILLABLE = ("environment", "monitor")
+"""Services a kill fault does not reach: the truth and time master, and the one recording;
+either would end the run, not test a restart."""
+
+
+def check_kill(dep: Deployment, service: str) -> None:
+    """A kill fault's target (``ddvi fault RUN kill SERVICE``, and the launcher's check of
+    the fault message): a service of ``dep`` whose crash the run can outlive, not one of
+    :data:`UNKILLABLE`.  Raises DeploymentError naming the services that can be killed."""
+    killable = [s for s in dep.services if s not in UNKILLABLE]
+    if service in UNKILLABLE:
+        raise DeploymentError(
+            f"kill: the {service} is not killed by faults (it would end the run); kill one of "
+            f"{', '.join(killable)}"
+        )
+    if service not in dep.services:
+        raise DeploymentError(
+            f"kill: {service!r} is not a service of this run; kill one of {', '.join(killable)}"
+        )
 
 
 def check_hosts(dep: Deployment) -> None:

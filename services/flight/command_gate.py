@@ -8,7 +8,8 @@ dropped by its link or by the bus's rate budget.  A controller that is there (it
 token alive) but silent pauses the mission (said after run.command_deadline wall seconds,
 counted in paused_steps) and, past run.hang_timeout, ends it (``HangError``); one that goes
 away is waited for once, up to run.command_deadline, and its deputy holds its last command
-(docs/health.md).
+(docs/health.md).  The step also waits for the recorder when the mission is more than its lead
+past what the monitor has acknowledged recording (``services.flight.recorder_lead``).
 """
 
 from __future__ import annotations
@@ -20,20 +21,20 @@ from collections.abc import Callable
 
 import numpy as np
 
-from services.flight.health import HangError, Waiting
+from services.flight.health import HANG_MARGIN, HangError, Waiting
+from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext
 from services.interface import Message, command_topic, fault_topic
 
 OBSERVED = "observed"  # inbox tag of a command seen by the link layer
 PRESENCE = "presence"  # inbox tag of a controller's liveliness change
 LOST = "lost"  # inbox tag: the bus's rate budget dropped commands unread (a flood)
+RECORDED_TAG = "recorded"  # inbox tag: the monitor's acknowledgement of what it recorded
+RECORDER_PRESENCE = "recorder presence"  # inbox tag: the monitor's liveliness change
 PANEL = fault_topic("panel")  # topic of run-time panel faults
 
 STOP_POLL = 0.25
 """Wall seconds the command wait blocks before it looks at a stop request again."""
-HANG_MARGIN = 5.0
-"""Wall seconds the environment waits for a controller past run.hang_timeout: a controller
-waiting on its own navigation gives up first and names it (``services.flight.controller``)."""
 
 
 class CommandGate:
@@ -48,6 +49,8 @@ class CommandGate:
     present : the deputies whose controller is alive (waited for in lock-step).
     counters : the environment's counters; the gate keeps its own among them.
     on_fault : called with a panel fault taken from the inbox.
+    recorder : how far the mission may run ahead of the monitor's recording (waited for in
+        lock-step as the commands are).
     """
 
     def __init__(
@@ -57,14 +60,18 @@ class CommandGate:
         present: set[str],
         counters: dict[str, int],
         on_fault: Callable[[Message], None],
+        recorder: RecorderLead,
     ) -> None:
         self.ctx, self.bus, self.inbox, self.present = ctx, ctx.bus, inbox, present
-        self.counters, self.on_fault = counters, on_fault
+        self.counters, self.on_fault, self.recorder = counters, on_fault, recorder
         dep = ctx.deployment
         self.run, self.fsw = dep.run, dep.run.fsw_period
         self.deputies = [d.name for d in dep.deputy]
+        # clipped to the attitude limit, per deputy too: the report says whose (outcome)
+        counters.update({f"clipped_commands.{sc}": 0 for sc in self.deputies})
         self.limits = np.array([d.attitude_limit for d in dep.deputy])
         self.sigma = np.zeros((len(self.deputies), 3))  # commands in force
+        self.now = 0.0  # the step being taken
         self.latest_for_t = dict.fromkeys(self.deputies, -math.inf)  # step of the one in force
         self.seen_for_t = dict.fromkeys(self.deputies, -math.inf)  # newest accounted for
         self.away_since: dict[str, float] = {}  # wall time each away controller went
@@ -85,18 +92,19 @@ class CommandGate:
         mission pauses for a controller that is there but silent (said after
         run.command_deadline), up to the hang timeout (``HangError``)."""
         self.bus.pump(t_k)  # release what the links held until t_k
+        self.now = t_k
         deputies, counters = self.deputies, self.counters
         expected = {sc: self.expected_step(sc, t_k) for sc in deputies}
         waiting = Waiting(self.run.command_deadline, self.run.hang_timeout + HANG_MARGIN)
         while not self.ctx.stop.is_set():
-            late = [sc for sc in deputies if self.outstanding(sc, t_k, expected[sc])]
+            late = self.awaited(t_k, expected)
             if wait and late and waiting.said_at(time.monotonic()):
                 counters["paused_steps"] += 1
-                names = ", ".join(f"ctrl-{sc}" for sc in late)
-                self.ctx.log("warning", f"lock-step paused at t = {t_k:.0f} s: no command from "
-                             f"{names} for {waiting.said:g} s", t_k)  # fmt: skip
+                names = ", ".join(f"{what} from {name}" for name, what in late)
+                self.ctx.log("warning", f"lock-step paused at t = {t_k:.0f} s: no {names} "
+                             f"for {waiting.said:g} s", t_k)  # fmt: skip
             if wait and late and waiting.over(time.monotonic()):
-                raise HangError(f"ctrl-{late[0]}", "command", t_k, self.run.hang_timeout)
+                raise HangError(*late[0], t_k, self.run.hang_timeout)
             waits = [waiting.until] if late else []
             waits += [u for sc in deputies if (u := self.returning(sc)) is not None]
             try:
@@ -115,6 +123,10 @@ class CommandGate:
                 break
             if kind == PANEL:
                 self.on_fault(msg)
+            elif kind == RECORDED_TAG:
+                self.recorder.acknowledged(msg.t)
+            elif kind == RECORDER_PRESENCE:
+                self.recorder.presence(msg)
             elif kind == PRESENCE:
                 self.on_presence(*msg, t_k)
             elif kind == LOST:
@@ -126,6 +138,18 @@ class CommandGate:
                 expected[sc] >= 0 and self.latest_for_t[sc] < expected[sc] - 1e-6 for sc in deputies
             )
         counters["controller_away_steps"] += len(set(deputies) - self.present)
+
+    def awaited(self, t_k: float, expected: dict[str, float]) -> list[tuple[str, str]]:
+        """What the step at t_k still waits for, as (service, what) pairs: each silent
+        controller's command, then the recorder's acknowledgement."""
+        late = [
+            (f"ctrl-{sc}", "command")
+            for sc in self.deputies
+            if self.outstanding(sc, t_k, expected[sc])
+        ]
+        if self.recorder.behind(t_k):
+            late.append((RECORDER, "acknowledgement of the recording"))
+        return late
 
     def outstanding(self, sc: str, t_k: float, expected: float) -> bool:
         """The step at t_k waits for the command of ``sc`` for step ``expected``."""
@@ -153,6 +177,11 @@ class CommandGate:
             counters["bad_commands"] += kind != OBSERVED
             return
         for_t = msg.body["for_t"]
+        if for_t > self.now + 1e-6:
+            # for a step this service has not clocked yet: no controller can have sent it (a
+            # stolen credential's, which would otherwise make every genuine command stale)
+            counters["bad_commands"] += kind != OBSERVED
+            return
         if kind == OBSERVED:
             self.seen_for_t[sc] = max(self.seen_for_t[sc], for_t)
             return
@@ -164,7 +193,9 @@ class CommandGate:
         i = self.deputies.index(sc)
         s_cmd = msg.body["sigma"]
         clipped = np.clip(s_cmd, -self.limits[i], self.limits[i])
-        counters["clipped_commands"] += int(np.any(clipped != s_cmd))
+        if np.any(clipped != s_cmd):
+            counters["clipped_commands"] += 1
+            counters[f"clipped_commands.{sc}"] += 1
         self.sigma[i] = clipped
         self.latest_for_t[sc] = for_t
 

@@ -17,7 +17,7 @@ into a running mission (``--join``) it flies from the first step it has a sample
 starts over (``Controller.rejoin``) and says so in its log.
 Health (docs/health.md): in lock-step a step whose sample does not come is said after
 run.command_deadline and given up past run.hang_timeout (exit HANG_STATUS, naming nav-<deputy>);
-in real time a step whose newest sample is older than run.nav_stale_limit flies the safe
+in either mode a step whose newest sample is older than run.nav_stale_limit flies the safe
 attitude (counted in safe_attitude_steps).  A flood on an input, dropped unread by the bus's
 rate budget, counts as that step's sample lost.
 """
@@ -34,7 +34,7 @@ import numpy as np
 
 from services.bus import queue_handler, watch_alive
 from services.flight.control import Controller
-from services.flight.health import HANG_STATUS, SAFE_SIGMA, HangError
+from services.flight.health import SAFE_SIGMA, HangError
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.step_gate import StepGate
 from services.flight.streams import FinalClock, SamplePairs
@@ -189,8 +189,7 @@ class ControllerService:
                 if self.done():
                     break
         except HangError as exc:
-            self.ctx.log("error", str(exc), exc.t)
-            status = HANG_STATUS
+            status = self.ctx.give_up(exc)
         t_end = self.next_tick - self.fsw
         self.publish_gains(t_end)
         self.publish_status(t_end)
@@ -283,8 +282,8 @@ class ControllerService:
             self.ctx.publish_stats(T, counters)
 
     def fly_safe(self, T: float, newest: Sample | None) -> bool:
-        """Real time: whether the step at T flies the safe attitude (StepGate.stale); said on
-        the way in and out, counted in safe_attitude_steps."""
+        """Whether the step at T flies the safe attitude (StepGate.stale: its navigation too
+        old); said on the way in and out, counted in safe_attitude_steps."""
         newest_t = newest[0] if newest is not None else None
         safe, said = self.gate.stale(T, newest_t, first=self.steps == 0)
         if said is not None:

@@ -29,12 +29,21 @@ import numpy as np
 
 from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive, watch_alive
-from services.config import check_panel
-from services.flight.command_gate import LOST, OBSERVED, PANEL, PRESENCE, CommandGate
-from services.flight.health import HANG_STATUS, HangError
+from services.config import Fault, check_fault
+from services.flight.command_gate import (
+    LOST,
+    OBSERVED,
+    PANEL,
+    PRESENCE,
+    RECORDED_TAG,
+    RECORDER_PRESENCE,
+    CommandGate,
+)
+from services.flight.health import HangError
+from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FaultQueue
-from services.interface import CLOCK, EXOSTATE, Message, command_topic, truth_topic
+from services.interface import CLOCK, EXOSTATE, RECORDED, Message, command_topic, truth_topic
 from services.model import (
     ReentryError,
     Truth,
@@ -70,6 +79,9 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         lost=lambda topic: inbox.put((LOST, topic)),
     )
     ctx.bus.subscribe(PANEL, queue_handler(inbox), expected_schema="fault")
+    ctx.bus.subscribe(
+        RECORDED, lambda _topic, msg: inbox.put((RECORDED_TAG, msg)), expected_schema="recorded"
+    )
     ctx.ready()
     others = [s for s in dep.services if s != ctx.name]
     alive = wait_for_alive(ctx.bus.session, ctx.run, others, run.startup_timeout)
@@ -85,11 +97,19 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
     def on_presence(service: str, up: bool) -> None:
         inbox.put((PRESENCE, (service.removeprefix("ctrl-"), up)))
 
-    presence = watch_alive(ctx.bus.session, ctx.run, "ctrl-*", on_presence)
+    def on_recorder(_service: str, up: bool) -> None:
+        inbox.put((RECORDER_PRESENCE, up))
+
+    recorder = RecorderLead(run.fsw_period, present=RECORDER in alive)
+    watches = [
+        watch_alive(ctx.bus.session, ctx.run, "ctrl-*", on_presence),
+        watch_alive(ctx.bus.session, ctx.run, RECORDER, on_recorder),
+    ]
     try:
-        return EnvironmentService(ctx, truth, inbox, present).run()
+        return EnvironmentService(ctx, truth, inbox, present, recorder).run()
     finally:
-        presence.undeclare()
+        for watch in watches:
+            watch.undeclare()
 
 
 class EnvironmentService:
@@ -103,10 +123,16 @@ class EnvironmentService:
     inbox : where the subscriptions put ``(topic or tag, message)``: commands, commands
         observed by the link layer, panel faults, controllers' presence.
     present : the deputies whose controller is alive (waited for in lock-step).
+    recorder : how far the mission may run ahead of the monitor's recording.
     """
 
     def __init__(
-        self, ctx: ServiceContext, truth: Truth, inbox: queue.SimpleQueue, present: set[str]
+        self,
+        ctx: ServiceContext,
+        truth: Truth,
+        inbox: queue.SimpleQueue,
+        present: set[str],
+        recorder: RecorderLead,
     ) -> None:
         self.ctx, self.truth = ctx, truth
         dep = self.dep = ctx.deployment
@@ -130,7 +156,7 @@ class EnvironmentService:
         self.panel_faults: FaultQueue[tuple[str, float | None, float | None]] = FaultQueue(
             [(t, (sc, factor, angle)) for t, sc, factor, angle in panel_schedule(dep)]
         )
-        self.commands = CommandGate(ctx, inbox, present, self.counters, self.on_fault)
+        self.commands = CommandGate(ctx, inbox, present, self.counters, self.on_fault, recorder)
         self.wall0 = time.monotonic()
         self.step = 0  # samples published so far (the clock's step)
 
@@ -147,9 +173,9 @@ class EnvironmentService:
             try:
                 self.commands.take(t_k, wait=run.mode == "lockstep")
             except HangError as exc:
-                self.ctx.log("error", str(exc), t_k)
+                status = self.ctx.give_up(exc)
                 self.ctx.publish_stats(t_k, {**counters, "completed": 0})
-                return HANG_STATUS
+                return status
             self.apply_panel_faults(t_k)
             t_next = t_k + self.fsw
             try:
@@ -215,13 +241,13 @@ class EnvironmentService:
     # -- panel faults ------------------------------------------------------------------------
 
     def on_fault(self, msg: Message) -> None:
-        """``fault/panel`` from the ground: checked now, applied at the next step."""
+        """``fault/panel`` from the ground: checked now, as a [[fault]] of the deployment
+        (``check_fault``), and applied at the next step."""
         sc, params = msg.body["target"], msg.body["params"]
         factor, angle = params.get("area_factor"), params.get("normal_angle")
         try:
-            if sc not in self.deputies:
-                raise ValueError(f"{sc!r} is not a deputy of this run")
-            check_panel(factor, angle)
+            fault = Fault(kind="panel", deputy=sc, area_factor=factor, normal_angle=angle)
+            check_fault(self.ctx.deployment, "panel", fault)
         except ValueError as exc:
             self.counters["bad_faults"] += 1
             self.ctx.log("warning", f"fault panel {sc}: refused ({exc}; got {msg.body})", msg.t)

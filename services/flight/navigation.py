@@ -14,7 +14,6 @@ Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
 
 from __future__ import annotations
 
-import math
 import queue
 import sys
 import zlib
@@ -24,7 +23,7 @@ import numpy as np
 from ddvi_core.constants import R_EARTH
 from ddvi_core.navfilter import RelativeNavFilter
 from services.bus import queue_handler
-from services.config import Deployment, Deputy
+from services.config import Deployment, DeploymentError, Deputy, Fault, check_fault
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FaultQueue, FinalClock, SamplePairs
 from services.interface import CLOCK, Message, fault_topic, nav_state_topic, truth_topic
@@ -145,10 +144,14 @@ class NavigationService:
             return  # another deputy's navigation
         p = msg.body["params"]
         values = [p.get(k, 0.0) for k in BIAS_KEYS]
-        if not all(isinstance(v, float | int) and math.isfinite(v) for v in values):
+        position, velocity = values[:3], values[3:]
+        fault = Fault(kind="bias", deputy=self.sc, position_bias=position, velocity_bias=velocity)
+        try:  # as a [[fault]] of the deployment: numbers in a navigation bias's range
+            check_fault(self.ctx.deployment, "bias", fault)
+        except DeploymentError as exc:
             self.counters["bad_faults"] += 1
-            self.ctx.log("warning", f"fault bias {self.sc}: refused (params {BIAS_KEYS} must be "
-                         f"finite numbers; got {p})", msg.t)  # fmt: skip
+            said = f"fault bias {self.sc}: refused ({exc}; params {BIAS_KEYS}, got {p})"
+            self.ctx.log("warning", said, msg.t)
             return
         self.bias_faults.from_ground(np.array(values, dtype=float), msg.src)
 

@@ -37,16 +37,22 @@ from services.bus import (
     Bus,
     BusSettings,
     LinkRule,
-    LinkSpec,
     RateBudget,
     budget_for,
-    impairs_truth,
     open_session,
+    router_answers,
     wait_for_alive,
     wait_for_gone,
 )
 from services.bus.security import Credentials, load_credentials
-from services.config import Deployment, DeploymentError, load_deployment
+from services.config import (
+    Deployment,
+    DeploymentError,
+    check_link_fault,
+    link_from_params,
+    load_deployment,
+)
+from services.flight.health import HANG_STATUS, HangError
 from services.interface import Message, fault_topic, log_topic, stats_topic
 from services.model import duration
 
@@ -82,6 +88,15 @@ class ServiceContext:
         service seen alive never misses a message addressed to it."""
         self.bus.declare_alive()
 
+    def give_up(self, exc: HangError) -> int:
+        """Lock-step gave up waiting (``exc``): log whom it blames and return ``HANG_STATUS``.
+        The blame goes to the part that stopped talking: the awaited service, unless the
+        run's router, which relays everything, does not answer either."""
+        if not router_answers(self.bus.session, self.run, exc.service):
+            exc = exc.router_silent()
+        self.log("error", str(exc), exc.t)
+        return HANG_STATUS
+
     def publish_stats(self, t: float, extra: dict[str, int] | None = None) -> None:
         counters = dict(self.bus.counters)
         counters.update(extra or {})
@@ -92,19 +107,20 @@ class ServiceContext:
     def on_link_fault(self, _topic: str, msg: Message) -> None:
         """``fault/link`` (``ddvi fault RUN link``): when this service matches the fault's
         target (the subscriber glob), impair what it receives from ``params.from`` (a publisher
-        glob) on ``params.topic`` from now on, as a deployment's [[link]] would."""
+        glob) on ``params.topic`` from now on, as a deployment's [[link]] would; refused, as
+        that [[link]] would be, unless the deployment allows it (``check_link_fault``)."""
         target, p = msg.body["target"], msg.body["params"]
         if self.name == "monitor" or not fnmatchcase(self.name, target):
             return  # the monitor records what is published, unimpaired
         where = f"fault link {target}: "
         try:
-            publisher, topic = str(p.get("from", "*")), str(p.get("topic", "*"))
-            spec = LinkSpec(**{k: float(p.get(k, 0.0)) for k in LINK_PARAMETERS})
-            if impairs_truth(publisher, self.name):
-                raise ValueError("the truth a navigation service measures is not a flight link")
-        except (TypeError, ValueError) as exc:
+            numbers = {k: p[k] for k in LINK_PARAMETERS if k in p}
+            link = link_from_params(p.get("from", "*"), target, p.get("topic", "*"), numbers)
+            check_link_fault(self.deployment, link)
+        except DeploymentError as exc:
             self.log("warning", where + f"refused at {self.name} ({exc})", msg.t)
             return
+        spec, publisher, topic = link.spec, link.publisher, link.topic
         self.bus.add_link_rule(LinkRule(publisher, topic, spec))
         impairments = ", ".join(f"{k} {getattr(spec, k):g}" for k in LINK_PARAMETERS
                                 if getattr(spec, k)) or "none"  # fmt: skip

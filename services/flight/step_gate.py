@@ -7,7 +7,7 @@ delivered, or held or lost by their links.  While navigation is away (its liveli
 for ``NAV_AWAY_GRACE``, until it is back) a step does not wait for its sample.  Health
 (docs/health.md): in lock-step a step whose sample does not come is said after
 run.command_deadline and given up past run.hang_timeout (``HangError`` naming the silent
-service); in real time a step whose newest sample is older than run.nav_stale_limit flies the
+service); in either mode a step whose newest sample is older than run.nav_stale_limit flies the
 safe attitude.
 """
 
@@ -118,18 +118,22 @@ class StepGate:
             raise HangError(who, f"sample for t = {want:.0f} s", T, waiting.hang)
 
     def stale(self, T: float, newest_t: float | None, first: bool) -> tuple[bool, str | None]:
-        """Real time: whether the step at T flies the safe attitude, its newest sample (measured
-        at ``newest_t``, None: none) older than the limit (run.nav_stale_limit) past the one it
-        should have; and what to say on the way in or out.  ``first``: no step has flown yet
-        (a step before any sample holds zero, not the safe attitude)."""
-        if self.lockstep or (first and newest_t is None):
+        """Whether the step at T flies the safe attitude, its newest sample (measured at
+        ``newest_t``, None: none) older than the limit (run.nav_stale_limit) past the one it
+        should have; and what to say on the way in or out.  In real time that sample did not
+        come in time; in lock-step, where the step waits until it is accounted for, it is held
+        or lost on its link (a run-time link fault, whose delay the wait does not know) or
+        navigation is away.  ``first``: no step has flown yet; a step before any sample is
+        due, or before any came at the start, holds zero, not the safe attitude."""
+        want = self.expected_sample(T)
+        if want < -1e-6 or (first and newest_t is None):
             return False, None
-        age = self.expected_sample(T) - (newest_t if newest_t is not None else -math.inf)
+        age = want - (newest_t if newest_t is not None else -math.inf)
         safe = age > self.stale_limit + 1e-6
         if safe == self.safe:
             return safe, None
         self.safe = safe
         if safe:
-            return True, (f"navigation {age:.0f} s old (limit {self.stale_limit:g} s): flying "
-                          "the safe attitude")  # fmt: skip
+            what = "no navigation yet" if newest_t is None else f"navigation {age:.0f} s old"
+            return True, f"{what} (limit {self.stale_limit:g} s): flying the safe attitude"
         return False, "navigation is back: flying the control law"

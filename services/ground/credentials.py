@@ -106,6 +106,12 @@ class RunNotFoundError(ValueError):
     """No run folder (or no readable bus description) for the name given; says where it looked."""
 
 
+class InsecureRunError(RunNotFoundError):
+    """The run folder holds credentials but its bus.json turns security off: the file was
+    edited, or the folder is not the run it seems; connecting would send nothing secret but
+    trust whatever answers, unauthenticated.  Says what to do."""
+
+
 def _folder(run: str, output: str) -> Path:
     """The run folder that ``run`` names: a folder path, or a run name under ``output``."""
     as_path = Path(run)
@@ -120,16 +126,30 @@ def _folder(run: str, output: str) -> Path:
     )
 
 
-def find_run(run: str, output: str, user: str) -> RunBus:
+def find_run(run: str, output: str, user: str, insecure: bool = False) -> RunBus:
     """The bus of the run named ``run`` (a run folder, or a run name under ``output``), with
     ``user``'s credentials when it is secure (``OPERATOR``, ``OBSERVER``).  Raises
-    ``RunNotFoundError`` with one line saying what is missing."""
+    ``RunNotFoundError`` with one line saying what is missing, and ``InsecureRunError`` when
+    the folder's bus.json turns security off while the folder holds credentials (a secure
+    run's folder: the launcher writes credentials only for a secure bus), unless ``insecure``
+    (the user said so: ``--insecure``).  Every ground command that reaches a run by its folder
+    (``ddvi fault``, ``ddvi monitor``, its live view) loads bus.json here."""
     folder = _folder(run, output)
+    bus_file = folder / BUS_FILE
     try:
-        info = json.loads((folder / BUS_FILE).read_text())
-        name, hub, secure = str(info["run"]), str(info["hub"]), bool(info["security"])
+        info = json.loads(bus_file.read_text())
+        name, hub, secure = str(info["run"]), str(info["hub"]), info["security"]
+        if not isinstance(secure, bool):
+            raise TypeError(f'"security" is {secure!r}, not true or false')
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise RunNotFoundError(f"{folder / BUS_FILE}: not a run's bus description ({exc})") from exc
+        raise RunNotFoundError(f"{bus_file}: not a run's bus description ({exc})") from exc
+    if not secure and (folder / SECURITY_DIR).exists() and not insecure:
+        raise InsecureRunError(
+            f"{bus_file} turns security off, but {folder / SECURITY_DIR} holds the run's "
+            "credentials: the file was edited, or this folder is not the run it seems. Restore "
+            '"security": true to connect with the credentials, or give --insecure to connect '
+            "without authentication anyway (anything on that hub may then answer)"
+        )
     if not secure:
         return RunBus(name, hub, None)
     path = credentials_path(folder, user)

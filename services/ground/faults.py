@@ -23,9 +23,16 @@ RUN is the run folder ``ddvi run`` prints, or the run's name under ``--output`` 
 with the operator's credentials from its ``security/`` folder (the only ones allowed to put
 faults).  ``--hub`` names the hub of an insecure run that has no run folder here.
 
+Before it sends anything the command checks the fault as the run's deployment would check the
+same fault, link or kill in its file (``services.config.validation``: a link's delay + jitter
+shorter than the mission, globs naming its services, a deputy of the run, values in range),
+against the copy in the run folder (``deployment.toml``); a run reached by ``--hub`` alone is
+checked by its services on receipt, with the same checks.
+
 The service that acts logs ``fault <kind> <target>: ...``; the command waits for that line,
 prints it, and exits 0, or 1 when the run, the service or that answer is not there, or the
-service refused the fault; 2 for a command line that does not describe a fault or a run.
+service refused the fault; 2, with nothing sent, for a command line that does not describe a
+fault or a run, or a fault the run's deployment refuses.
 """
 
 from __future__ import annotations
@@ -52,10 +59,23 @@ from services.bus import (
     watch_alive,
 )
 from services.bus.security import OPERATOR
-from services.config import check_panel
+from services.config import (
+    Deployment,
+    DeploymentError,
+    Fault,
+    check_fault,
+    check_kill,
+    check_link_fault,
+    check_panel,
+    link_from_params,
+    load_deployment,
+)
+from services.config.ranges import check_bias
+from services.ground.runfolder import DEPLOYMENT_FILE
 from services.interface import decode, topics
 
 if TYPE_CHECKING:
+    from services.config.deployment import Link
     from services.ground.credentials import RunBus
 
 KINDS = ("kill", "panel", "bias", "link")
@@ -82,6 +102,12 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                    default=[0.0, 0.0, 0.0], help="bias: Hill velocity bias, m/s")  # fmt: skip
     p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
     p.add_argument("--hub", help="an insecure run's hub, when its run folder is not here")
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="connect without authentication although the run folder holds credentials and "
+        "its bus.json turns security off (refused otherwise; docs/security.md)",
+    )
     # a lock-step run sends no clock while a controller learns (seconds, more on a busy host)
     p.add_argument("--timeout", type=float, default=30.0, help="s to wait for the run's answer")
     return p
@@ -110,16 +136,19 @@ class UsageError(Exception):
     """A fault the command line does not describe fully; the message says what is missing."""
 
 
-def locate_run(run: str, output: str, hub: str | None, user: str) -> RunBus:
+def locate_run(run: str, output: str, hub: str | None, user: str, insecure: bool = False) -> RunBus:
     """The run's bus: from its run folder (``find_run``; ``hub`` overrides its endpoint), or,
     with no run folder here, the insecure hub ``hub``.  Raises UsageError saying what is
-    missing."""
+    missing, or that the folder's bus.json turns security off while it holds credentials
+    (unless ``insecure``: ``--hub`` does not get round that)."""
     # imported here: `ddvi fault` parses its arguments with the fewest modules (a running
     # mission waits for nobody)
-    from services.ground.credentials import RunBus, RunNotFoundError, find_run
+    from services.ground.credentials import InsecureRunError, RunBus, RunNotFoundError, find_run
 
     try:
-        found = find_run(run, output, user)
+        found = find_run(run, output, user, insecure)
+    except InsecureRunError as exc:
+        raise UsageError(f"ddvi fault: {exc}") from exc
     except RunNotFoundError as exc:
         if hub is None:
             raise UsageError(f"ddvi fault: {exc}; or give an insecure run's --hub") from exc
@@ -148,27 +177,80 @@ def _target(args: argparse.Namespace) -> tuple[str, str]:
     return run, target
 
 
+def _link(args: argparse.Namespace) -> Link:
+    """The link a link fault impairs, its numbers checked as a [[link]]'s (UsageError)."""
+    numbers = {k: getattr(args, k) for k in LINK_PARAMETERS}
+    try:
+        return link_from_params(args.publisher.replace("/", "-"), args.target, args.topic, numbers)
+    except DeploymentError as exc:
+        raise UsageError(f"ddvi fault: {exc}") from None
+
+
 def _params(args: argparse.Namespace, target: str) -> tuple[dict[str, Any], str | None]:
-    """The fault's params, and the service that acts on it (None: every service a link glob
-    matches answers)."""
+    """The fault's params, each checked as far as it can be without the run's deployment, and
+    the service that acts on it (None: every service a link glob matches answers)."""
     if args.kind == "panel":
         try:
             check_panel(args.area_factor, args.stuck_angle)
         except ValueError as exc:
-            raise UsageError(f"ddvi fault panel: give --area-factor F > 0 and/or --stuck-angle DEG "
-                        f"in (0, 90) ({exc})") from exc  # fmt: skip
+            said = f"give --area-factor F in (0, 100] and/or --stuck-angle DEG in (0, 90) ({exc})"
+            raise UsageError(f"ddvi fault panel: {said}") from exc
         params = {"area_factor": args.area_factor, "normal_angle": args.stuck_angle}
         return {k: v for k, v in params.items() if v is not None}, "environment"
     if args.kind == "bias":
         if args.position is None:
             raise UsageError("ddvi fault bias: give --position X Y Z (m)")
+        try:
+            check_bias("bias", args.position, args.velocity)
+        except DeploymentError as exc:
+            raise UsageError(f"ddvi fault: {exc}") from None
         values = [*args.position, *args.velocity]
         return dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True)), f"nav-{target}"
     if args.kind == "link":
-        params = {"from": args.publisher.replace("/", "-"), "topic": args.topic}
-        params.update({k: getattr(args, k) for k in LINK_PARAMETERS})
+        link = _link(args)
+        params = {"from": link.publisher, "topic": link.topic}
+        params.update({k: getattr(link, k) for k in LINK_PARAMETERS})
         return params, None
     return {}, target
+
+
+def run_deployment(run: str, output: str) -> Deployment | None:
+    """The deployment the run flies, from the copy in its folder (``deployment.toml``); None
+    when no run folder is here (a run reached by --hub) or it holds no copy."""
+    from services.ground.credentials import RunNotFoundError, run_folder
+
+    try:
+        path = run_folder(run, output) / DEPLOYMENT_FILE
+    except RunNotFoundError:
+        return None
+    if not path.is_file():
+        return None
+    try:
+        return load_deployment(str(path))
+    except DeploymentError as exc:
+        raise UsageError(f"ddvi fault: the run's deployment {path}: {exc}") from None
+
+
+def check_against(dep: Deployment, args: argparse.Namespace, target: str) -> None:
+    """Raise UsageError unless the fault is one the run's deployment ``dep`` allows: what its
+    own [[link]], [[fault]] tables and services allow (``services.config.validation``)."""
+    try:
+        if args.kind == "kill":
+            check_kill(dep, target)
+        elif args.kind == "link":
+            check_link_fault(dep, _link(args))
+        else:
+            fault = Fault(
+                kind=args.kind,
+                deputy=target,
+                area_factor=args.area_factor,
+                normal_angle=args.stuck_angle,
+                position_bias=list(args.position or [0.0, 0.0, 0.0]),
+                velocity_bias=list(args.velocity),
+            )
+            check_fault(dep, args.kind, fault)
+    except DeploymentError as exc:
+        raise UsageError(f"ddvi fault: {exc}") from None
 
 
 def _link_answerers(session: zenoh.Session, run: str, target: str) -> set[str]:
@@ -232,10 +314,12 @@ def _connect(stack: contextlib.ExitStack, bus: RunBus) -> zenoh.Session | None:
 def fault_command(args: argparse.Namespace) -> int:
     """Publish one fault and wait for the launcher's account of it; 0 when it was acted on."""
     try:
-        bus = locate_run(args.run, args.output, args.hub, OPERATOR)
+        bus = locate_run(args.run, args.output, args.hub, OPERATOR, args.insecure)
         args.run_name = bus.run
         run, target = _target(args)
         params, acting = _params(args, target)
+        if (dep := run_deployment(args.run, args.output)) is not None:
+            check_against(dep, args, target)
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2

@@ -6,6 +6,7 @@ matplotlib is imported when the figures are drawn, not when this module is.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,15 +37,21 @@ Curve = Callable[[DeputySeries], tuple[FloatArray, FloatArray]]
 """A deputy's curve: (t (N,) in s, y (N,))."""
 
 
+Save = Callable[[str, bytes], bool]
+"""Writes a figure's PNG bytes under its file name; whether it was written."""
+
+
 @dataclass
 class Canvas:
     """What every figure of a run shares: the folder, the run, its deputies' series, pyplot,
-    and the files written so far (deputy j draws in colour j of the colour cycle)."""
+    how a figure is saved, and the files written so far (deputy j draws in colour j of the
+    colour cycle)."""
 
     out: Path
     data: RunData
     series: list[DeputySeries]
     plt: Any
+    write: Save
     written: list[str] = field(default_factory=list)
 
     def color(self, j: int) -> str:
@@ -55,9 +62,11 @@ class Canvas:
         return f"{self.data.run}: {FIGURES[name]}"
 
     def save(self, fig: Any, name: str) -> None:
-        fig.savefig(self.out / name, dpi=110)
+        png = io.BytesIO()  # drawn whole first: on a full disk no part of a figure is left
+        fig.savefig(png, dpi=110, format="png")
         self.plt.close(fig)
-        self.written.append(name)
+        if self.write(name, png.getvalue()):
+            self.written.append(name)
 
 
 def legend(ax: Any) -> None:
@@ -196,14 +205,21 @@ def along_track_error(s: DeputySeries) -> tuple[FloatArray, FloatArray]:
     return s.t, np.maximum(np.abs(s.hill[:, 1] - s.deputy.y_ref), 1e-6)
 
 
-def write_figures(out: Path, data: RunData, series: list[DeputySeries]) -> list[str]:
-    """Write the PNG figures; return their file names."""
+def write_figures(
+    out: Path, data: RunData, series: list[DeputySeries], save: Save | None = None
+) -> list[str]:
+    """Write the PNG figures, each with ``save`` (default: a file in ``out``); return the file
+    names of those written."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    canvas = Canvas(out, data, series, plt)
+    def to_file(name: str, png: bytes) -> bool:
+        (out / name).write_bytes(png)
+        return True
+
+    canvas = Canvas(out, data, series, plt, save or to_file)
     line_figure(canvas, "hill_x.png", "x [m]", lambda s: (s.t, s.hill[:, 0]))
     line_figure(canvas, "hill_y.png", "y [m]", lambda s: (s.t, s.hill[:, 1]), refs=True)
     line_figure(canvas, "hill_xdot.png", "xdot [m/s]", lambda s: (s.t, s.hill[:, 3]))

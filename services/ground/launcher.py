@@ -32,14 +32,15 @@ from typing import Any
 import zenoh
 
 from services.bus import Bus, BusSettings, error_text, open_session, queue_handler
+from services.bus.security import write_private
 from services.config import Deployment
 from services.ground import credentials, lifecycle
 from services.ground.netns import exists as netns_exists
 from services.ground.netns import hub_address
 from services.ground.processes import ServiceProcesses
-from services.ground.runfolder import FOLDER_MODE, make_run_folder
+from services.ground.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.supervisor import Supervisor
-from services.interface.topics import fault_topic
+from services.interface.topics import CLOCK, fault_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
@@ -115,8 +116,8 @@ class Launcher:
 
     def _make_folder(self) -> int | None:
         """Make the run folder exclusively (``runfolder.make_run_folder``: a name that exists
-        is never reused) with its bus.json and credentials; None, or (one line said, no run
-        folder left) status 2."""
+        is never reused) with its bus.json, credentials and a copy of the deployment; None, or
+        (one line said, no run folder left) status 2."""
         made = False
         try:
             self.run, self.out = make_run_folder(self.root, self.run, self.folder_mode)
@@ -124,6 +125,9 @@ class Launcher:
             made = True
             (self.out / "logs").mkdir()
             self._hub_settings()  # bus.json and the credentials, each a new file
+            if self.dep.path:  # what `ddvi fault` checks a fault against
+                text = Path(self.dep.path).read_text()
+                write_private(self.out / DEPLOYMENT_FILE, text, mode=0o644)
         except OSError as exc:
             if made:
                 shutil.rmtree(self.out, ignore_errors=True)
@@ -184,8 +188,9 @@ class Launcher:
             self.say(f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
                      "WebSocket; docs/live.md)")  # fmt: skip
         with Bus(session, self.run, "launcher") as bus:
-            faults: queue.SimpleQueue = queue.SimpleQueue()
+            faults: queue.SimpleQueue = queue.SimpleQueue()  # kill faults and the clock
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
+            bus.subscribe(CLOCK, queue_handler(faults), expected_schema="clock")
             for name in [*first, "environment"]:
                 self.services.start(name)
             if (status := self._await(session, first)) is not None:
@@ -247,11 +252,11 @@ class Launcher:
             return 1
         summary = self.out / "summary.json"
         if monitor.returncode != 0 or not summary.is_file():
-            self.say(f"monitor exited with status {monitor.returncode}; no report", error=True)
+            self.say(lifecycle.no_report(self.out, monitor.returncode), error=True)
             return 1
-        status, text = lifecycle.verdict(json.loads(summary.read_text()))
-        self.say(f"{text} in {time.monotonic() - started:.1f} s; report in {self.out}",
-                 error=status != 0)  # fmt: skip
+        took = time.monotonic() - started
+        status, text = lifecycle.final_line(json.loads(summary.read_text()), self.out, took)
+        self.say(text, error=status != 0)
         print(self.out)
         return status
 

@@ -5,10 +5,13 @@ Exit statuses of ``ddvi run`` (docs/faults.md, "Stopping a run"):
     0    the mission completed: the environment's final clock at the planned end, every command
          flown (none refused, stale or missing)
     1    it failed: a service died, the mission ended early (a re-entry, a final clock from
-         anyone but the environment), or no report was written
+         anyone but the environment), the recording stopped (a full or failing disk), or no
+         report was written
     2    bad input: the deployment, the output folder or the bus settings (one line says which)
     3    the mission completed, but commands were refused, stale or missing, a publisher flooded
-         its receivers, or a controller flew the safe attitude (the report counts them)
+         its receivers, a controller flew the safe attitude, the ground refused messages, a
+         service claimed impossible counters, or messages were published and never recorded
+         (the report counts them)
     128+N  stopped by signal N (130 SIGINT, 129 SIGHUP, 143 SIGTERM); the partial report is
          written
 """
@@ -28,7 +31,9 @@ import zenoh
 
 from services.bus import watch_alive
 from services.flight.runtime import STOP_SIGNALS
-from services.ground.outcome import flood_text
+from services.ground.disk import size_text, space_left
+from services.ground.outcome import flood_text, impossible_text
+from services.ground.record import gaps_text, stop_text
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_DEGRADED = 0, 1, 2, 3
 LOG_TAIL = 8  # a crashed service's last log lines the launcher shows
@@ -192,34 +197,70 @@ def command_problems(commands: Mapping[str, Any]) -> dict[str, int]:
     return {k: v for k, v in found.items() if v}
 
 
+def final_line(summary: Mapping[str, Any], folder: Path, seconds: float) -> tuple[int, str]:
+    """The exit status and ``ddvi run``'s last line for a run's summary.json, which took
+    ``seconds``, in ``folder``."""
+    status, text = verdict(summary)
+    if summary.get("outcome", {}).get("record", {}).get("recording") is not None:
+        return status, f"{text} ({seconds:.1f} s)"  # it says what is where
+    return status, f"{text} in {seconds:.1f} s; report in {folder}"
+
+
+def no_report(folder: Path, status: int | None) -> str:
+    """``ddvi run``'s line when the monitor wrote no report: why (its log's last error), the
+    space left on the run folder's disk, and what is saved there."""
+    from services.ground.recording import RECORDING  # the recorder's module only here
+
+    why = log_reason(folder / "logs" / "monitor.log").removeprefix("no report: ")
+    recording = folder / RECORDING
+    saved = "no recording"
+    if recording.is_file():
+        saved = f"{RECORDING} ({size_text(recording.stat().st_size)})"
+    left = size_text(space_left(folder))
+    return (
+        f"monitor exited with status {status}; no report ({why}); {left} left on {folder}; "
+        f"saved there: {saved}"
+    )
+
+
 def verdict(summary: Mapping[str, Any]) -> tuple[int, str]:
     """The exit status and one line for a run's summary.json (``services.ground.report``)."""
     out = summary.get("outcome", {})
+    record = out.get("record", {})
+    if record.get("recording") is not None:  # the disk failed the run's record
+        missing = list(summary.get("not_written", {}))
+        figures = summary.get("figures", [])
+        written = ["report.md", "summary.json"] + ([f"{len(figures)} figures"] if figures else [])
+        said = stop_text(record, written, missing)
+        if not summary.get("completed", False):
+            said = f"mission INCOMPLETE at {summary.get('orbits', 0.0):.2f} orbits; {said}"
+        return EXIT_FAILED, said
     problems = command_problems(out.get("commands", {}))
-    said = ", ".join(f"{v} {k}" for k, v in problems.items())
-    health = []
+    said = (
+        [f"commands were {', '.join(f'{v} {k}' for k, v in problems.items())}"] if problems else []
+    )
     if found := out.get("flooded"):
-        health.append(f"flooded by {flood_text(found)}")
+        said.append(f"flooded by {flood_text(found)}")
     if safe := out.get("health", {}).get("safe_attitude_steps"):
-        health.append("safe attitude flown by " + ", ".join(
-            f"{name} ({n} steps)" for name, n in sorted(safe.items())))  # fmt: skip
-    if health:
-        said = "; ".join(([f"commands were {said}"] if said else []) + health)
-    ended_by = out.get("ended_by")
-    if not summary.get("completed", False):
-        why = f" (ended by {ended_by})" if ended_by else ""
-        orbits = summary.get("orbits", 0.0)
-        tail = f"; {said if health else 'commands: ' + said}" if said else ""
-        return EXIT_FAILED, f"mission INCOMPLETE at {orbits:.2f} orbits{why}{tail}"
-    if health:
-        return EXIT_DEGRADED, f"mission completed, but {said} (exit status 3)"
-    if problems:
-        return EXIT_DEGRADED, f"mission completed, but commands were {said} (exit status 3)"
+        said.append(
+            "safe attitude flown by "
+            + ", ".join(f"{name} ({n} steps)" for name, n in sorted(safe.items()))
+        )
     if refused := out.get("refused"):
         whom = ", ".join(sorted({f"{r['topic']} from {r['src']}" for r in refused})[:5])
-        n = sum(r["count"] for r in refused)
+        said.append(f"{sum(r['count'] for r in refused)} messages were refused ({whom})")
+    if impossible := out.get("impossible"):
+        said.append(f"impossible claims were made ({impossible_text(impossible)})")
+    if not record.get("complete", True):
+        said.append(f"the record is incomplete: {gaps_text(record)}")
+    if not summary.get("completed", False):
+        ended_by = out.get("ended_by")
+        why = f" (ended by {ended_by})" if ended_by else ""
+        tail = f"; {'; '.join(said)}" if said else ""
         return (
-            EXIT_DEGRADED,
-            f"mission completed, but {n} messages were refused ({whom}) (exit status 3)",
+            EXIT_FAILED,
+            f"mission INCOMPLETE at {summary.get('orbits', 0.0):.2f} orbits{why}{tail}",
         )
+    if said:
+        return EXIT_DEGRADED, f"mission completed, but {'; '.join(said)} (exit status 3)"
     return EXIT_OK, "mission completed"

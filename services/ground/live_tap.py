@@ -77,7 +77,7 @@ def serve_live(args: argparse.Namespace) -> int:
         if not args.run:
             raise LiveError("--live needs --run RUN (the run folder ddvi run prints)")
         address = check_live(args.live)
-        bus = find_run(args.run, args.output, OBSERVER)
+        bus = find_run(args.run, args.output, OBSERVER, getattr(args, "insecure", False))
         folder = run_folder(args.run, args.output)
         keyexpr = run_keyexpr(bus.run, args.keyexpr)
     except (LiveError, RunNotFoundError, ValueError) as exc:

@@ -58,15 +58,26 @@ from typing import Any
 import zenoh
 
 from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards
+from services.flight.health import RECORDER_ACK_STEPS
 from services.flight.runtime import ServiceContext, run_service
+from services.ground.disk import LogFile
 from services.ground.ending import Ending
 from services.ground.live import LiveServer, live_server
 from services.ground.live_address import parse_address
+from services.ground.record import RecordGaps
 from services.ground.recording import RECORDING, TIMELINE, Recorder
-from services.ground.report import write_report
+from services.ground.report import ReportNotWrittenError, write_report
 from services.ground.rundata import RunData
 from services.ground.status import Status
-from services.interface import REASONS, MessageError, decode, schema_for_topic, topics, unpack_batch
+from services.interface import (
+    REASONS,
+    Message,
+    MessageError,
+    decode,
+    schema_for_topic,
+    topics,
+    unpack_batch,
+)
 
 log = logging.getLogger("ddvi.monitor")
 
@@ -76,8 +87,9 @@ DRAW_PERIOD = 0.5  # s between live status refreshes
 # (its summary and footer written) well within the launcher's report grace, whatever the backlog
 CLOSE_DRAIN = 10.0
 FINAL_STATS_WAIT = 0.5  # s to wait for the monitor's own final stats to loop back
-# The monitor is the ground: it records and reports, and no step of the flight loop waits on
-# it. Its main thread yields the CPU to the flight services, and takes what arrived in batches
+# The monitor is the ground: it records and reports, and the flight loop waits on it only when
+# lock-step runs more than its lead past what it has recorded (services.flight.recorder_lead).
+# Its main thread yields the CPU to the flight services, and takes what arrived in batches
 # instead of waking for every sample. The threads that receive and stamp samples (zenoh's, and
 # the subscriber's callback thread) keep their priority: a slowed receiver would fill zenoh's
 # queue to the callback and hold up every publisher (congestion control BLOCK).
@@ -100,7 +112,8 @@ class Monitor:
         self.ctx = ctx
         self.prefix = f"ddvi/{ctx.run}/"
         self.alive_prefix = self.prefix + topics.alive_topic("")
-        self.data = RunData(ctx.deployment, ctx.run)
+        budget = ctx.bus.budget  # a service's stats may count what it dropped (claims)
+        self.data = RunData(ctx.deployment, ctx.run, budget.dropped_from if budget else None)
         self.counters: dict[str, int] = dict.fromkeys(
             ("received", "recorded", "rejected", "handler_errors"), 0
         )
@@ -185,6 +198,7 @@ class Monitor:
             self.reject(topic, key, value, err, recv_ns)
             return
         rec.message(topic, msg, recv_ns)  # everything received is recorded
+        self.data.received(msg)  # and counted against its publisher's stats (claims)
         if self.live is not None:
             self.live.message(topic, msg)
         if msg.schema == "clock" and msg.src != TIME_MASTER:
@@ -198,7 +212,9 @@ class Monitor:
             self.counters["refused.origin"] += 1
             self.counters["recorded"] = rec.messages
             return
-        if (why := self.guards.check(msg, topic)) is not None:
+        budget = self.ctx.bus.budget
+        missed = budget.dropped_from(msg.src) if budget is not None else 0
+        if (why := self.guards.check(msg, topic, missed)) is not None:
             n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
             if n <= 10 or n % 1000 == 0:
                 log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)
@@ -210,6 +226,24 @@ class Monitor:
             self.counters["handler_errors"] += 1
             log.exception("could not use %s at t = %s", key, msg.t)
         self.counters["recorded"] = rec.messages
+        if msg.schema == "clock":
+            self.acknowledge(msg)
+
+    def acknowledge(self, clock: Message) -> None:
+        """In lock-step, at every ``RECORDER_ACK_STEPS``-th flight-software step's clock: say
+        that it is recorded, with what came before it (the environment flies at most
+        ``RECORDER_LEAD_STEPS`` past it, ``services.flight.recorder_lead``)."""
+        run = self.ctx.deployment.run
+        if run.mode != "lockstep" or not clock.body["fsw"]:
+            return
+        if round(clock.t / run.fsw_period) % RECORDER_ACK_STEPS:
+            return
+        assert self.recorder is not None
+        body = {"messages": self.recorder.messages}
+        try:
+            self.ctx.bus.publish(topics.RECORDED, "recorded", body, clock.t)
+        except Exception:  # the recording goes on; lock-step then waits and names the monitor
+            log.exception("could not acknowledge the recording at t = %s", clock.t)
 
     def count_floods(self) -> None:
         """The budget's drops into the counters (``flooded``, ``flood.<publisher>``)."""
@@ -361,10 +395,21 @@ def _final_stats(ctx: ServiceContext, mon: Monitor, inbox: Inbox) -> None:
 
 
 def _report(ctx: ServiceContext, mon: Monitor, completed: bool) -> int:
-    """Write the run report; 0 when it has figures, else 1."""
-    summary = write_report(
-        Path(ctx.out), mon.data, completed=completed, monitor_counters=mon.counters
+    """Write the run report; 0 when it has figures (or names those its disk had no room for),
+    else 1 (also when it could not be written, said in one line)."""
+    rec = mon.recorder
+    gaps = RecordGaps(
+        rec.stopped if rec else None,
+        rec.not_recorded if rec else 0,
+        mon.counters.get("unrecorded", 0),  # still queued when the recording closed
     )
+    try:
+        summary = write_report(
+            Path(ctx.out), mon.data, completed=completed, monitor_counters=mon.counters, gaps=gaps
+        )
+    except ReportNotWrittenError as exc:
+        log.error("no report: %s", exc)
+        return 1
     log.info(
         "report written to %s (completed=%s, %d messages recorded, %d rejected)",
         ctx.out,
@@ -372,7 +417,7 @@ def _report(ctx: ServiceContext, mon: Monitor, completed: bool) -> int:
         mon.counters["recorded"],
         mon.counters["rejected"],
     )
-    return 0 if len(summary["figures"]) > 0 else 1
+    return 0 if summary["figures"] or summary["not_written"] else 1
 
 
 def log_to_file_too() -> None:
@@ -385,7 +430,7 @@ def log_to_file_too() -> None:
         return
     if (out.st_dev, out.st_ino) == (err.st_dev, err.st_ino):
         return
-    handler = logging.StreamHandler(sys.stdout)
+    handler = LogFile(sys.stdout)  # on a full disk: its lines lost, said once, no traceback
     root = logging.getLogger()
     if root.handlers and root.handlers[0].formatter is not None:
         handler.setFormatter(root.handlers[0].formatter)

@@ -19,6 +19,11 @@ which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.ve
     refused     the messages the ground refused to believe, by publisher, topic and reason
                 (``services.ground.refusals``): a topic its publisher may not send, or a body
                 naming another deputy or service than its topic
+    impossible  the counters a service claimed in its stats that cannot be true, by publisher,
+                counter and reason (``services.ground.claims``): never believed
+    clipped_commands  {"total": n, "by_deputy": {deputy: n}}: commands the environment clipped
+                to the deputy's attitude limit (``deputy.attitude_limit``)
+    record      whether the record of the run is whole (``services.ground.record``)
 """
 
 from __future__ import annotations
@@ -46,10 +51,15 @@ def outcome(
     services: Mapping[str, Mapping[str, Any]],
     monitor: Mapping[str, Any],
     refused: Sequence[Mapping[str, Any]] = (),
+    impossible: Sequence[Mapping[str, Any]] = (),
+    deputies: Sequence[str] = (),
+    record: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The outcome block: how the run ended (``sim_t`` s of ``duration``, orbit ``period``
     s) and the command problems counted by the environment in ``services`` (service ->
-    counters); ``monitor``: the monitor's counters; ``refused``: ``Refusals.summary()``."""
+    counters); ``monitor``: the monitor's counters; ``refused``: ``Refusals.summary()``;
+    ``impossible``: ``Claims.impossible()``; ``deputies``: the deputies' names; ``record``:
+    ``record.record_block`` (None: whole)."""
     env = services.get(TIME_MASTER, {})
     commands = {
         name: sum(int(env.get(key, 0) or 0) for key in keys)
@@ -77,6 +87,17 @@ def outcome(
             "paused_steps": int(env.get("paused_steps", 0) or 0),
         },
         "refused": [dict(r) for r in refused],
+        "impossible": [dict(c) for c in impossible],
+        "clipped_commands": clipped(env, deputies),
+        "record": dict(record) if record is not None else {"complete": True},
+    }
+
+
+def clipped(env: Mapping[str, Any], deputies: Sequence[str]) -> dict[str, Any]:
+    """The environment's commands clipped to the attitude limit: in all and by deputy."""
+    return {
+        "total": int(env.get("clipped_commands", 0) or 0),
+        "by_deputy": {sc: int(env.get(f"clipped_commands.{sc}", 0) or 0) for sc in deputies},
     }
 
 
@@ -135,6 +156,14 @@ def outcome_lines(out: Mapping[str, Any]) -> list[str]:
             f"- **{out['refused_clocks']} clock messages refused**: not from the environment "
             "(recorded, never obeyed)"
         )
+    if (cut := out.get("clipped_commands")) is not None:
+        lines.append(clipped_line(cut))
+    if impossible := out.get("impossible"):
+        lines.append(
+            f"- **{sum(c['count'] for c in impossible)} impossible claims** in services' stats "
+            "(never believed; ddvi run exits 3 for a completed mission):"
+        )
+        lines += [f"  - {impossible_line(c)}" for c in impossible[:20]]
     refused = out.get("refused") or []
     if refused:
         total = sum(r["count"] for r in refused)
@@ -154,3 +183,29 @@ def refused_line(r: Mapping[str, Any]) -> str:
     return (
         f"`{r['topic']}` from `{r['src']}`: {r['count']} ({why}; first at t = {r['first_t']:.0f} s)"
     )
+
+
+def clipped_line(cut: Mapping[str, Any]) -> str:
+    """report.md's line on the commands clipped to the attitude limit, by deputy."""
+    by = cut.get("by_deputy", {})
+    if not cut.get("total"):
+        return "- commands clipped to the attitude limit: none"
+    said = ", ".join(f"{sc} {n}" for sc, n in by.items())
+    if (rest := cut["total"] - sum(by.values())) > 0:  # a recording without them by deputy
+        said = ", ".join(filter(None, [said, f"{rest} of a deputy not named"]))
+    return f"- commands clipped to the attitude limit: {said}"
+
+
+def impossible_line(c: Mapping[str, Any]) -> str:
+    """One kind of impossible claim, in words: who claimed what, and why it cannot be."""
+    again = f"; {c['count']} such claims" if c["count"] > 1 else ""
+    what = "stats" if c["counter"] == "service" else f"{c['counter']} = {c['claimed']:,}"
+    return (
+        f"`{c['src']}` claimed {what}: impossible, {c['text']} "
+        f"(first at t = {c['first_t']:.0f} s{again})"
+    )
+
+
+def impossible_text(found: Sequence[Mapping[str, Any]]) -> str:
+    """One phrase naming each impossible claim's publisher and figure."""
+    return ", ".join(f"{c['src']} {c['counter']} = {c['claimed']:,}" for c in found[:5])

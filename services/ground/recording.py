@@ -22,17 +22,18 @@ from __future__ import annotations
 import base64
 import functools
 import json
-import os
+import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import orjson
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
+from services.ground.disk import REPORT_ROOM, RecordFile, size_text, space_left
 from services.interface import (
     REASONS,
     SCHEMAS,
@@ -48,6 +49,8 @@ from services.interface import (
     Str,
     topics,
 )
+
+log = logging.getLogger("ddvi.monitor")
 
 RECORDING = "recording.mcap"
 """The recording's file name in the run folder."""
@@ -106,6 +109,7 @@ def message_json_schema(spec: Schema) -> dict[str, Any]:
             "seq": {"type": "integer"},
             "t": {"type": "number", "description": "simulation time, s"},
             "src": {"type": "string"},
+            "boot": {"type": "integer", "description": "the publisher's boot"},
             "body": {
                 "type": "object",
                 "properties": {k: _field_json_schema(f) for k, f in spec.fields.items()},
@@ -113,7 +117,7 @@ def message_json_schema(spec: Schema) -> dict[str, Any]:
                 "additionalProperties": False,
             },
         },
-        "required": ["schema", "version", "seq", "t", "src", "body"],
+        "required": ["schema", "version", "seq", "t", "src", "boot", "body"],
     }
 
 
@@ -150,6 +154,7 @@ def message_record(msg: Message) -> dict[str, Any]:
         "seq": msg.seq,
         "t": msg.t,
         "src": msg.src,
+        "boot": msg.boot,
         "body": msg.body,  # validated: finite float64 arrays, which orjson writes as lists
     }
 
@@ -166,26 +171,119 @@ def rejected_record(key: str, payload: bytes, err: MessageError) -> dict[str, An
     }
 
 
+@dataclass(frozen=True)
+class RecordingStop:
+    """The recording stopped before the run ended: its disk was nearly full (``footer``: it
+    was closed whole, summary and footer written) or a write failed (it is cut back to its
+    last whole record: ``ddvi report`` repairs it where there is room)."""
+
+    path: str
+    why: str  # in a few words: the disk nearly full, or the error of the write that failed
+    space_left: int | None  # bytes left on its disk when it stopped
+    at_t: float  # simulated time of the last message in the file, s
+    messages: int  # messages in the file
+    footer: bool
+
+
 class Recorder:
-    """An MCAP file of JSON channels, flushed on demand, closed exactly once."""
+    """An MCAP file of JSON channels, flushed on demand, closed exactly once.
+
+    It stops recording, and says so once, rather than fail: while ``room()`` bytes (the
+    pending chunk, the footer and ``disk.REPORT_ROOM`` for the report) are still left on its
+    disk it closes the file whole; a write that fails all the same (a disk filled by others, an
+    I/O error) cuts the file back to its last whole record.  Either way ``stopped`` says what
+    is in the file, and what comes after is counted (``not_recorded``), never written.
+    """
 
     def __init__(self, path: Path, metadata: dict[str, str], attachment: Path | None) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
-        self._file: IO[bytes] = path.open("wb")
-        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library="ddvi-fsw monitor")
-        self._writer.add_metadata("ddvi", metadata)
-        if attachment is not None and attachment.is_file():
-            now = time.time_ns()
-            self._writer.add_attachment(
-                now, now, attachment.name, "application/toml", attachment.read_bytes()
-            )
+        self.messages = 0  # handed to the writer
+        self.not_recorded = 0  # messages after the recording stopped, or lost in its cut
+        self.closed = False
+        self.stopped: RecordingStop | None = None
+        self._saved, self._saved_ns = 0, 0  # messages in whole chunks, their latest log time
+        self._pending, self._pending_ns = 0, 0  # messages in the chunk being built
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
-        self.messages = 0
-        self.closed = False
-        self.flush()
+        self._file: RecordFile | None = None
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = RecordFile(path)
+        except OSError as exc:
+            self._stop(exc.strerror or str(exc), footer=False)
+            return
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+
+        def start() -> None:
+            self._writer.start(profile="", library="ddvi-fsw monitor")
+            self._writer.add_metadata("ddvi", metadata)
+            if attachment is not None and attachment.is_file():
+                now = time.time_ns()
+                self._writer.add_attachment(
+                    now, now, attachment.name, "application/toml", attachment.read_bytes()
+                )
+            self._writer.flush()
+
+        self._guarded(start)
+
+    def room(self) -> int:
+        """Bytes the file must leave on its disk: the chunk being built (at most a chunk and a
+        message), the footer (its chunk index, about 0.5 % of the file) and the report's."""
+        position = self._file.position if self._file is not None else 0
+        return REPORT_ROOM + 2 * CHUNK_SIZE + position // 100
+
+    def _guarded(self, act: Callable[[], Any]) -> bool:
+        """Do ``act`` (a call into the writer); whether it went whole.  A write that failed
+        stops the recording."""
+        assert self._file is not None
+        chunks = self._file.chunks
+        try:
+            act()
+        except OSError as exc:
+            self._settle(chunks)
+            self._cut(exc)
+            return False
+        self._settle(chunks)
+        return True
+
+    def _settle(self, chunks: int) -> None:
+        """A chunk that reached the file since there were ``chunks`` holds every message
+        pending."""
+        assert self._file is not None
+        if self._file.chunks != chunks:
+            self._saved += self._pending
+            self._saved_ns = max(self._saved_ns, self._pending_ns)
+            self._pending = 0
+
+    def _cut(self, exc: OSError) -> None:
+        """A write failed: cut the file back to its last whole record, and stop."""
+        assert self._file is not None
+        why = exc.strerror or str(exc)
+        try:
+            self._file.cut()
+        except OSError as cut:
+            why += f", and it could not be cut back to its last whole record ({cut.strerror})"
+        self._stop(why, footer=False)
+
+    def _stop(self, why: str, footer: bool) -> None:
+        """Record nothing more; say so once."""
+        self.closed = True
+        self.not_recorded += self.messages - self._saved  # handed over, not in the file
+        left = space_left(self.path.parent)
+        stop = RecordingStop(str(self.path), why, left, self._saved_ns / 1e9, self._saved, footer)
+        self.stopped = stop
+        how = "closed whole" if footer else "cut back to its last whole record"
+        log.error(
+            "the recording stopped at t = %.0f s: %s, %s left on %s; %s holds %d messages (%s); "
+            "the run goes on without it",
+            stop.at_t,
+            why,
+            size_text(left),
+            self.path.parent,
+            self.path.name,
+            stop.messages,
+            how,
+        )
 
     def _schema_id(self, name: str, schema: dict[str, Any]) -> int:
         sid = self._schemas.get(name)
@@ -214,10 +312,26 @@ class Recorder:
     ) -> None:
         """Write ``data`` as JSON on channel ``topic`` (registered with its schema on first
         use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns."""
-        cid = self._channel(topic, schema_name, schema)
+        if self.stopped is None:
+            self._keep_room()
+        if self.stopped is not None:
+            self.not_recorded += 1
+            return
         payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
-        self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
-        self.messages += 1
+        assert self._file is not None
+        chunks = self._file.chunks  # written in line, not through _guarded: once a message
+        try:
+            cid = self._channel(topic, schema_name, schema)
+            self.messages += 1
+            self._pending += 1
+            self._pending_ns = max(self._pending_ns, log_ns)
+            self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
+        except OSError as exc:
+            self._settle(chunks)
+            self._cut(exc)
+            return
+        if self._file.chunks != chunks:
+            self._settle(chunks)
 
     def message(self, topic: str, msg: Message, recv_ns: int) -> None:
         """Record a decoded bus message received at wall time ``recv_ns``."""
@@ -241,19 +355,39 @@ class Recorder:
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS (what a kill -9 cannot lose)."""
         if not self.closed:
-            self._writer.flush()
+            self._guarded(self._writer.flush)
 
     def close(self) -> None:
         """Write the summary and footer, and sync the file to disk; once only."""
         if self.closed:
             return
-        self.closed = True
-        try:
-            self._writer.finish()
-            self._file.flush()
-            os.fsync(self._file.fileno())
-        finally:
-            self._file.close()
+        if self._finish():
+            self.closed = True
+            self._saved, self._saved_ns = self.messages, max(self._saved_ns, self._pending_ns)
+
+    def _finish(self) -> bool:
+        """Write the last chunk, the summary and the footer, sync and close the file; whether
+        it went whole (if not, the recording has stopped, cut short)."""
+        assert self._file is not None
+        file = self._file
+        if not self._guarded(self._writer.finish) or not self._guarded(file.sync):
+            return False
+        file.close()
+        return True
+
+    def _keep_room(self) -> None:
+        """Close the file whole while its disk still has ``room()`` for it and the report."""
+        left = self._file.left if self._file is not None else None
+        if left is not None and left < self.room():
+            self._close_full()
+
+    def _close_full(self) -> None:
+        """The disk is nearly full: close the file whole now, with what it holds, and stop."""
+        room = self.room()
+        if self._finish():
+            self._saved, self._saved_ns = self.messages, max(self._saved_ns, self._pending_ns)
+            kept = f"less than the {size_text(room)} it keeps for its end and the report"
+            self._stop(f"its disk is nearly full ({kept})", footer=True)
 
 
 @dataclass(frozen=True)

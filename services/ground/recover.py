@@ -6,11 +6,13 @@ recording cut short (the monitor killed with -9: no summary, no footer).
 A recording cut short is read record by record with mcap's low-level ``StreamReader`` up to
 its last complete chunk; every message read is written into a new, complete MCAP file
 (``recording.mcap``, which mcap's ``make_reader`` and Foxglove then open) and the original is
-kept beside it as ``recording.truncated.mcap``.  The report (``services.ground.report``) is
-then written from the messages, as the monitor would have: duplicates and replays kept out,
-clocks from anyone but the environment not obeyed.  The deployment is the one attached to the
-recording.  Exit status 0 when a report was written, 1 when the recording holds nothing
-usable, 2 when RUN is not a run folder.
+kept beside it as ``recording.truncated.mcap``; on a disk with no room for the copy, the
+recording stays as it is, and the copy is not left in part.  The report
+(``services.ground.report``) is then written from the messages, as the monitor would have:
+duplicates and replays kept out, clocks from anyone but the environment not obeyed.  The
+deployment is the one attached to the recording.  Exit status 0 when a report was written, 1
+when the recording holds nothing usable or the report cannot be written, 2 when RUN is not a
+run folder.
 """
 
 from __future__ import annotations
@@ -32,11 +34,14 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from services.config import Deployment, DeploymentError, deployment_from_table, load_deployment
+from services.ground.disk import failure
 from services.ground.recording import CHUNK_SIZE, RECORDING
+from services.ground.report import ReportNotWrittenError
 
 log = logging.getLogger("ddvi.report")
 
 TRUNCATED = "recording.truncated.mcap"
+REPAIRED = "recording.repaired.mcap"  # the repaired copy, until it replaces the recording
 
 
 @dataclass
@@ -58,6 +63,7 @@ class Recovered:
     messages: int
     complete: bool
     summary: dict[str, Any]
+    unrepaired: str | None = None  # why a recording cut short could not be repaired
 
 
 def stream_records(path: Path) -> Records:
@@ -94,9 +100,17 @@ def is_complete(path: Path) -> bool:
 
 
 def rewrite(records: Records, path: Path) -> None:
-    """Write ``records`` as a complete MCAP file at ``path`` (zstd chunks, as the monitor's)."""
-    tmp = path.with_suffix(".tmp")
-    with tmp.open("wb") as f:
+    """Write ``records`` as a complete MCAP file at ``path`` (zstd chunks, as the monitor's),
+    whole or not at all: nothing of it is left when a write fails (a full disk)."""
+    try:
+        _write(records, path)
+    except OSError:
+        path.unlink(missing_ok=True)
+        raise
+
+
+def _write(records: Records, path: Path) -> None:
+    with path.open("wb") as f:
         w = Writer(f, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         w.start(profile="", library="ddvi-fsw report (recovered)")
         for m in records.metadata:
@@ -114,7 +128,6 @@ def rewrite(records: Records, path: Path) -> None:
         w.finish()
         f.flush()
         os.fsync(f.fileno())
-    tmp.replace(path)
 
 
 def _deployment(records: Records, meta: dict[str, str]) -> Deployment:
@@ -136,15 +149,22 @@ def recover(folder: Path) -> Recovered:
         raise FileNotFoundError(f"{path}: no recording")
     records = stream_records(path)
     complete = records.complete and is_complete(path)
+    unrepaired = None
     if not complete:
-        os.replace(path, folder / TRUNCATED)
-        rewrite(records, path)
+        try:  # the repaired copy first: on a full disk the recording stays as it was
+            rewrite(records, folder / REPAIRED)
+        except OSError as exc:
+            unrepaired = failure(path, exc)
+            log.error("%s cannot be repaired here: %s", path, unrepaired)
+        else:
+            os.replace(path, folder / TRUNCATED)
+            os.replace(folder / REPAIRED, path)
     meta = next((dict(m.metadata) for m in records.metadata if m.name == "ddvi"), {})
     if "run" not in meta:
         raise ValueError(f"{path}: no ddvi metadata (not a ddvi recording?)")
     dep = _deployment(records, meta)
     summary = replay(folder, dep, meta["run"], records)
-    return Recovered(len(records.messages), complete, summary)
+    return Recovered(len(records.messages), complete, summary, unrepaired)
 
 
 def _folder(run: str) -> Path | None:
@@ -176,7 +196,12 @@ def report_command(args: argparse.Namespace) -> int:
     except (OSError, ValueError, DeploymentError, tomllib.TOMLDecodeError) as exc:
         print(f"ddvi report: {folder}: {exc}", file=sys.stderr)
         return 1
+    except ReportNotWrittenError as exc:
+        print(f"ddvi report: no report: {exc}", file=sys.stderr)
+        return 1
     how = "complete" if got.complete else f"cut short; repaired, the original is {TRUNCATED}"
+    if got.unrepaired:
+        how = f"cut short; not repaired: {got.unrepaired}"
     print(f"ddvi report: {got.messages} messages read from {folder / RECORDING} ({how}); "
           f"completed: {got.summary['completed']}", file=sys.stderr)  # fmt: skip
     print(json.dumps({"messages": got.messages, "complete": got.complete}))

@@ -9,14 +9,17 @@ rejected by reason.  Used by ``ddvi report`` (``services.ground.recover``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from services.bus import SEQUENCE_REASONS, SequenceGuards
 from services.config import Deployment
 from services.ground.outcome import TIME_MASTER
+from services.ground.record import RecordGaps
 from services.ground.recording import TIMELINE
 from services.ground.report import write_report
 from services.ground.rundata import RunData
@@ -51,8 +54,14 @@ def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
         if spec is not None and isinstance(body, dict) and version != spec.version:
             raise MessageError("version", f"{spec.name}: recorded at version {version}, which "
                                f"this version ({spec.version}) cannot read")  # fmt: skip
-        payload = encode(data["schema"], body, seq=data["seq"], t=data["t"],
-                         src=data["src"])  # fmt: skip
+        payload = encode(
+            data["schema"],
+            body,
+            seq=data["seq"],
+            t=data["t"],
+            src=data["src"],
+            boot=data.get("boot", 0),  # a recording without boots: one boot for all
+        )
         return decode(payload, data["schema"])
     except (MessageError, KeyError, TypeError) as exc:
         reason = exc.reason if isinstance(exc, MessageError) else "bad_field"
@@ -65,7 +74,7 @@ def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
 def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, Any]:
     """Write the report of ``records`` (``services.ground.recover.Records``) to ``folder``;
     return its summary."""
-    data = RunData(dep, run)
+    data = RunData(dep, run, _dropped(records))
     guards = SequenceGuards()
     counters = _counters()
     alive = topics.alive_topic("")
@@ -88,6 +97,7 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
         msg = _message(channel.topic, body, counters)
         if msg is None:
             continue
+        data.received(msg)
         if msg.schema == "clock" and msg.src != TIME_MASTER:
             counters["refused.clock"] += 1
             continue
@@ -102,16 +112,30 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
         except Exception:  # one odd message must not lose the report
             counters["handler_errors"] += 1
             log.exception("could not use %s at t = %s", channel.topic, msg.t)
-    summary = write_report(folder, data, completed=data.final_seen, monitor_counters=counters)
-    summary["recovered"] = {"messages": len(records.messages), "complete": records.complete}
-    (folder / "summary.json").write_text(json.dumps(_plain(summary), indent=2))
-    with (folder / "report.md").open("a") as f:
-        f.write(
-            f"\nWritten by `ddvi report` from the recording: {len(records.messages)} messages"
-            + ("" if records.complete else " up to its last complete chunk (it was cut short)")
-            + ".\n"
-        )
-    return summary
+    n, complete = len(records.messages), records.complete
+    return write_report(
+        folder,
+        data,
+        completed=data.final_seen,
+        monitor_counters=counters,
+        gaps=RecordGaps(cut_short=not complete),
+        source=f"the {n} messages read from the recording",
+        recovered={"messages": n, "complete": complete},
+    )
+
+
+def _dropped(records: Any) -> Callable[[str], int]:
+    """What the monitor's rate budget dropped unread from each publisher, as its last stats
+    in the recording say (``flood.<publisher>``): a service's stats may count those
+    (``services.ground.claims``)."""
+    stats = topics.stats_topic("monitor")
+    ids = {k for k, c in records.channels.items() if c.topic == stats}
+    last = next((m for m in reversed(records.messages) if m.channel_id in ids), None)
+    counters: dict[str, Any] = {}
+    if last is not None:
+        with contextlib.suppress(ValueError, KeyError, TypeError, AttributeError):
+            counters = dict(json.loads(last.data)["body"]["counters"])
+    return lambda publisher: int(counters.get(f"flood.{publisher}", 0) or 0)
 
 
 def _receive_wall_time(records: Any) -> str:
@@ -119,8 +143,3 @@ def _receive_wall_time(records: Any) -> str:
     metadata says so (``recording.TIMELINE``), log_time in one made before."""
     meta = next((dict(m.metadata) for m in records.metadata if m.name == "ddvi"), {})
     return "publish_time" if meta.get("publish_time") == TIMELINE["publish_time"] else "log_time"
-
-
-def _plain(value: Any) -> Any:
-    """``value`` with numpy arrays and scalars as lists and numbers (for JSON)."""
-    return json.loads(json.dumps(value, default=lambda v: v.tolist()))

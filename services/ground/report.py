@@ -10,6 +10,11 @@
                      message counters
     report.md        the summary table and the figure list
 
+Each file is written whole or not at all (``services.ground.disk``): on a nearly full disk the
+timeseries and the figures take only what is left beyond the room kept for report.md and
+summary.json, and whatever did not fit is named in both (``not_written``).  report.md's first
+lines say whether the run's record is whole (``services.ground.record``).
+
 Every gain error is |K - K*| / |K*| against K*, the optimal gain of the truth's linear model
 of that run (``services.model.true_lqr_gains``: the truth's density, facet area and factors),
 which is the nominal LQR gain when the truth is nominal; the error against the nominal LQR
@@ -20,6 +25,7 @@ the nominal gain by as much as the model is wrong.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 from pathlib import Path
@@ -28,8 +34,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from services.ground.disk import REPORT_ROOM, failure, size_text, space_left, write_whole
 from services.ground.figures import FIGURES, write_figures
 from services.ground.outcome import outcome, outcome_lines
+from services.ground.record import RecordGaps, record_block, record_line
 from services.ground.rundata import CraftData, DeputySeries, FloatArray, GainRecord, RunData
 from services.ground.scoring import (
     NOT_LEARNED,
@@ -173,9 +181,9 @@ def _message_summary(data: RunData, monitor: dict[str, int]) -> dict[str, Any]:
     }
 
 
-def write_csv(path: Path, data: RunData, series: list[DeputySeries]) -> int:
-    """Write timeseries.csv; return the number of data rows.  Empty cells: no navigation
-    sample at that time, no command yet, a non-finite value."""
+def timeseries_csv(data: RunData, series: list[DeputySeries]) -> tuple[bytes, int]:
+    """timeseries.csv's bytes and its number of data rows.  Empty cells: no navigation sample
+    at that time, no command yet, a non-finite value."""
     header = ["t", "orbits", "deputy", "controller", *HILL]
     header += [f"nav_{k}" for k in HILL] + ["nav_valid", "sigma3", "phase"]
     # a row's numbers are formatted in two operations (t and orbits; hill, nav, valid and
@@ -203,10 +211,10 @@ def write_csv(path: Path, data: RunData, series: list[DeputySeries]) -> int:
             tail = (tail_format % tuple(v[2:])).replace("nan", "")
             rows.append((v[0], j, f"{head_format % tuple(v[:2])},{labels},{tail},{phase[i]}"))
     rows.sort(key=lambda r: (r[0], r[1]))
-    with path.open("w", newline="") as f:
-        csv.writer(f).writerow(header)
-        f.writelines(r[2] + "\r\n" for r in rows)  # the csv module's line ending
-    return len(rows)
+    text = io.StringIO(newline="")
+    csv.writer(text).writerow(header)
+    text.writelines(r[2] + "\r\n" for r in rows)  # the csv module's line ending
+    return text.getvalue().encode(), len(rows)
 
 
 def _csv_cell(text: str) -> str:
@@ -228,12 +236,17 @@ def _gain_cell(d: dict[str, Any], key: str) -> str:
     return value if isinstance(value, str) else _num(value)
 
 
-def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> None:
+def markdown(summary: dict[str, Any], figures: list[str]) -> str:
+    """report.md's text: first what the run is, whether it completed and whether its record
+    is whole (and which of the report's files did not fit), then the outcome and the table."""
+    out = summary.get("outcome", {})
     lines = [
         f"# Run {summary['run']}",
         "",
         f"- deployment: `{summary['deployment']}`",
         f"- completed: {'yes' if summary['completed'] else '**no** (partial report)'}",
+        record_line(out.get("record", {}), summary.get("source", "what was recorded")),
+        *not_written_lines(summary.get("not_written", {})),
         f"- simulated: {summary['sim_time_s']:.0f} s = {summary['orbits']:.2f} orbits "
         f"in {summary['wall_s']:.1f} s wall",
         *(outcome_lines(summary["outcome"]) if "outcome" in summary else []),
@@ -285,21 +298,92 @@ def write_markdown(path: Path, summary: dict[str, Any], figures: list[str]) -> N
         "",
     ]
     lines += [f"- [{FIGURES.get(f, f)}]({f})" for f in figures]
-    lines += ["", "Data: `timeseries.csv`, `summary.json`, recording `recording.mcap`.", ""]
+    data = [f"`{f}`" for f in ("timeseries.csv",) if f not in summary.get("not_written", {})]
+    data += ["`summary.json`", "recording `recording.mcap`"]
+    lines += ["", f"Data: {', '.join(data)}.", ""]
     if summary.get("events"):
         lines += ["## Faults, warnings and errors", ""]
         for e in summary["events"][:50]:
             text = e.get("text") or f"{e.get('kind')} on {e.get('target')} {e.get('params')}"
             lines.append(f"- t = {e['t']:.0f} s `{e['topic']}`: {text}")
         lines.append("")
-    path.write_text("\n".join(lines))
+    if (got := summary.get("recovered")) is not None:
+        cut = "" if got["complete"] else " up to its last complete chunk (it was cut short)"
+        lines += [
+            f"Written by `ddvi report` from the recording: {got['messages']} messages{cut}.",
+            "",
+        ]
+    return "\n".join(lines)
+
+
+def not_written_lines(not_written: dict[str, str]) -> list[str]:
+    """report.md's line on the report's files that did not fit on the disk (none: no line)."""
+    if not not_written:
+        return []
+    said = "; ".join(f"`{name}`: {why}" for name, why in not_written.items())
+    return [f"- **not written**: {said}"]
+
+
+class ReportNotWrittenError(Exception):
+    """summary.json or report.md could not be written; the message says which, why, and the
+    space left on the disk."""
+
+
+class ReportFiles:
+    """The report's files in its folder, each written whole or not at all
+    (``disk.write_whole``): the timeseries and the figures only into what the disk has beyond
+    ``disk.REPORT_ROOM``, which stays for summary.json and report.md.  ``not_written``: each
+    file that did not fit, and why (an older file of its name is removed: it would belong to
+    another report)."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.not_written: dict[str, str] = {}
+
+    def extra(self, name: str, data: bytes) -> bool:
+        """Write ``name`` if it fits beside the report's room; whether it was written."""
+        path = self.out / name
+        try:
+            write_whole(path, data, keep=REPORT_ROOM)
+        except OSError as exc:
+            self.not_written[name] = exc.strerror or str(exc)
+            path.unlink(missing_ok=True)
+            return False
+        return True
+
+    def say(self) -> None:
+        """One line on what was not written, if anything."""
+        if self.not_written:
+            left = f"{size_text(space_left(self.out))} left on {self.out}"
+            said = "; ".join(f"{name}: {why}" for name, why in self.not_written.items())
+            log.warning("not written (%s): %s", left, said)
+
+    def essential(self, name: str, data: bytes) -> None:
+        """Write ``name``; ReportNotWrittenError when it cannot be."""
+        path = self.out / name
+        try:
+            write_whole(path, data)
+        except OSError as exc:
+            raise ReportNotWrittenError(failure(path, exc)) from exc
 
 
 def write_report(
-    out: Path, data: RunData, *, completed: bool, monitor_counters: dict[str, int]
+    out: Path,
+    data: RunData,
+    *,
+    completed: bool,
+    monitor_counters: dict[str, int],
+    gaps: RecordGaps | None = None,
+    source: str = "every message the monitor received",
+    recovered: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write timeseries.csv, the figures, summary.json and report.md to ``out``; return the
-    summary. Figures that fail are logged and left out (the rest is still written)."""
+    """Write timeseries.csv, the figures, report.md and summary.json to ``out``; return the
+    summary.  ``gaps``: what the recorder knows the record lacks; ``source``: what the report
+    is from, in words; ``recovered``: how ``ddvi report`` read the recording (messages, and
+    whether it was complete).  Each file is written whole or not at all, the timeseries and the
+    figures only beyond the room kept for the other two (``ReportFiles``); what did not fit is
+    named in both.  Figures that fail are logged and left out.  Raises ReportNotWrittenError when
+    report.md or summary.json cannot be written."""
     out.mkdir(parents=True, exist_ok=True)
     series = []
     for d in data.dep.deputy:
@@ -307,9 +391,11 @@ def write_report(
         K, L = lqr_gains(data.dep, d)
         K_true, L_true = reference_gains(data.dep, d)
         series.append(DeputySeries(d, t, hill, np.asarray(K), np.asarray(L), K_true, L_true))
-    rows = write_csv(out / "timeseries.csv", data, series)
+    files = ReportFiles(out)
+    table, rows = timeseries_csv(data, series)
+    files.extra("timeseries.csv", table)
     try:
-        figures = write_figures(out, data, series)
+        figures = write_figures(out, data, series, save=files.extra)
     except Exception:
         log.exception("could not draw the figures")
         figures = []
@@ -334,16 +420,21 @@ def write_report(
             for s in series
         },
         "messages": _message_summary(data, monitor_counters),
-        "outcome": _outcome(data, monitor_counters),
+        "outcome": _outcome(data, monitor_counters, gaps or RecordGaps()),
         "figures": figures,
+        "not_written": files.not_written,
+        "source": source,
         "events": data.events,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
-    write_markdown(out / "report.md", summary, figures)
+    if recovered is not None:
+        summary["recovered"] = recovered
+    files.say()
+    files.essential("report.md", markdown(summary, figures).encode())
+    files.essential("summary.json", json.dumps(summary, indent=2, default=_json_default).encode())
     return summary
 
 
-def _outcome(data: RunData, monitor_counters: dict[str, int]) -> dict[str, Any]:
+def _outcome(data: RunData, monitor_counters: dict[str, int], gaps: RecordGaps) -> dict[str, Any]:
     """How the run ended and what happened to its commands (``services.ground.outcome``)."""
     return outcome(
         final_seen=data.final_seen,
@@ -353,6 +444,9 @@ def _outcome(data: RunData, monitor_counters: dict[str, int]) -> dict[str, Any]:
         services=data.stats,
         monitor=monitor_counters,
         refused=data.refusals.summary(),
+        impossible=data.claims.impossible(),
+        deputies=[d.name for d in data.dep.deputy],
+        record=record_block(gaps, data.unrecorded()),
     )
 
 

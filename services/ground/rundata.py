@@ -1,8 +1,10 @@
 """The monitor's memory of a run: what it learned from the bus, one decoded message at a time.
 
 ``RunData`` keeps, per spacecraft, the time series the report needs (truth, navigation,
-commands, gains, controller status) in compact ``array('d')`` buffers, plus the last stats
-counters of every service and the notable events (faults, warnings, errors).
+commands, gains, controller status) in compact ``array('d')`` buffers, plus every service's
+counters as its stats say them, each believed only when it can be true
+(``services.ground.claims``: against what arrived from the service and what is possible), and
+the notable events (faults, warnings, errors).
 
 The truth Hill state is ``ddvi_core.orbit.rv_to_hill`` of deputy vs chief at the same sample
 time, with the chief's gravitational acceleration (two-body + J2 when the deployment has J2)
@@ -12,8 +14,8 @@ computes it for all samples at once (same formula, checked against rv_to_hill in
 
 from __future__ import annotations
 
-import math
 from array import array
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,6 +25,7 @@ from numpy.typing import NDArray
 from ddvi_core.orbit import hill_frame, rv_to_hill
 from ddvi_core.truth import acceleration
 from services.config import Deployment, Deputy
+from services.ground.claims import Claims
 from services.ground.refusals import Refusals
 from services.interface import Message
 from services.model import duration, orbit_period
@@ -105,7 +108,9 @@ class CraftData:
 class RunData:
     """What the monitor learned from the bus, fed one decoded message at a time."""
 
-    def __init__(self, dep: Deployment, run: str) -> None:
+    def __init__(
+        self, dep: Deployment, run: str, dropped: Callable[[str], int] | None = None
+    ) -> None:
         self.dep = dep
         self.run = run
         self.period = orbit_period(dep)
@@ -115,12 +120,11 @@ class RunData:
         self.clock_seen = False
         self.final_seen = False
         self.final_t: float | None = None  # time of the final clock
-        self.stats: dict[str, dict[str, int]] = {}  # service -> counters, all its processes
-        self._stats_last: dict[str, dict[str, int]] = {}  # service -> its process's last
-        self._stats_base: dict[str, dict[str, int]] = {}  # service -> earlier processes' sum
-        self.stats_t: dict[str, float] = {}  # service -> latest t of its stats
-        self._processes: dict[str, int] = {}  # service -> its processes that sent stats
-        self.ingested_from: dict[str, int] = {}  # publisher -> its messages believed
+        # every service's stats, each believed only when possible; ``dropped``: what the
+        # ground's rate budget dropped unread from a publisher so far (services.ground.claims)
+        self.claims = Claims(dep, run, dropped)
+        self.stats = self.claims.stats  # service -> counters, all its processes
+        self.stats_t = self.claims.stats_t  # service -> latest t of its believed stats
         self.events: list[dict[str, Any]] = []  # faults, warnings and errors
         self.last_log: dict[str, str] = {}  # log topic -> the last line logged on it
         self.refusals = Refusals()  # messages believed of nobody: never ingested
@@ -141,11 +145,17 @@ class RunData:
             self.first_ns = recv_ns
         self.last_ns = recv_ns
 
+    def received(self, msg: Message) -> None:
+        """Any message decoded, before the ground decides whether to believe it: what arrived
+        from its publisher, which its stats are checked against (``Claims``)."""
+        self.claims.seen(msg)
+
     def ingest(self, topic: str, msg: Message) -> None:
         """Update the time series with one decoded message (one ``refusals`` accepts)."""
-        self.counts[msg.schema] = self.counts.get(msg.schema, 0) + 1
-        self.ingested_from[msg.src] = self.ingested_from.get(msg.src, 0) + 1
         b = msg.body
+        if msg.schema == "stats" and not self.claims.claim(msg, self.sim_t):
+            return  # an impossible claim: recorded, counted, never believed
+        self.counts[msg.schema] = self.counts.get(msg.schema, 0) + 1
         if msg.schema == "clock":
             self.clock_seen = True
             self.sim_t = max(self.sim_t, msg.t)
@@ -158,6 +168,11 @@ class RunData:
             self.sc(b["sc"]).truth.add(msg.t, [*b["r_N"], *b["v_N"]])
         elif msg.schema == "nav":
             self.sc(b["sc"]).nav.add(msg.t, [*b["x_hill"], 1.0 if b["valid"] else 0.0])
+        elif msg.schema == "cmd" and b["for_t"] > self.sim_t + self.dep.run.fsw_period + 1e-6:
+            # for a step the clock has not come near: no controller sent it, and the environment
+            # refuses it (counted there, services.flight.command_gate); it must not become the
+            # command in force of the time series
+            pass
         elif msg.schema == "cmd":
             self.sc(b["sc"]).cmd.add(b["for_t"], b["sigma"])
         elif msg.schema == "gains":
@@ -169,8 +184,6 @@ class RunData:
             )  # fmt: skip
         elif msg.schema == "status":
             self.sc(b["sc"]).status.append(StatusRecord(msg.t, dict(b)))
-        elif msg.schema == "stats":
-            self._stats(msg.t, b["service"], dict(b["counters"]))
         elif msg.schema == "log" and b["text"]:
             self.last_log[topic] = b["text"]
         notable = msg.schema == "fault" or (
@@ -179,35 +192,11 @@ class RunData:
         if notable and len(self.events) < MAX_EVENTS:
             self.events.append({"t": msg.t, "topic": topic, "src": msg.src, **b})
 
-    def _stats(self, t: float, service: str, counters: dict[str, int]) -> None:
-        """A service's counters: summed over its processes, since a restarted one counts from 0
-        again."""
-        last = self._stats_last.get(service)
-        if last is None:
-            self._processes[service] = 1
-        elif counters.get("sent", 0) < last.get("sent", 0):
-            self._processes[service] += 1
-            # counters start again from 0: the service was restarted; keep what the
-            # previous process counted
-            base = self._stats_base.setdefault(service, {})
-            for k, v in last.items():
-                base[k] = base.get(k, 0) + v
-        self._stats_last[service] = counters
-        base = self._stats_base.get(service, {})
-        self.stats[service] = {k: base.get(k, 0) + counters.get(k, 0) for k in base | counters}
-        self.stats_t[service] = max(t, self.stats_t.get(service, -math.inf))
-
     def unrecorded(self) -> dict[str, int]:
-        """Messages each service published that never reached the monitor: what its stats say
-        it sent (each process's last stats count what it sent before them, the stats message
-        itself not included) against what arrived from it.  A process ended without final
-        stats (kill -9) sent more than its stats say: it can hide a loss, never invent one."""
-        lost = {}
-        for service, counters in self.stats.items():
-            sent = int(counters.get("sent", 0)) + self._processes.get(service, 0)
-            if (n := sent - self.ingested_from.get(service, 0)) > 0:
-                lost[service] = n
-        return lost
+        """Messages each service published that never reached the monitor
+        (``Claims.unrecorded``): it can hide a loss (a process killed before its final stats
+        sent more than they say), never invent one."""
+        return self.claims.unrecorded()
 
     # -- derived quantities -----------------------------------------------------------------
 

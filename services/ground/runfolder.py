@@ -14,6 +14,9 @@ FOLDER_MODE = 0o700
 """A run folder's default mode: its owner's only."""
 ATTEMPTS = 100
 """Names tried (``<run>``, ``<run>-2``, ...) before giving up on a crowded output root."""
+DEPLOYMENT_FILE = "deployment.toml"
+"""The deployment a run flies, copied into its folder as it starts: what ``ddvi fault`` checks
+a fault against (the file the launcher read may change while the run flies)."""
 
 
 def make_run_folder(root: Path, run: str, mode: int = FOLDER_MODE) -> tuple[str, Path]:

@@ -2,8 +2,10 @@
 (``ddvi fault RUN kill SERVICE``) SIGKILLs the named service, as a crash would; a service that
 dies before the mission ends is started again into the running mission (``--join``) when its
 [[restart]] policy says so, up to its ``max_restarts``, else the run ends; a service that gave
-up a lock-step wait (``HANG_STATUS``) ends the run naming the hung one.  Each event is said on
-the terminal, logged on ``log/launcher`` and counted on ``stats/launcher`` (restarts,
+up a lock-step wait (``HANG_STATUS``) ends the run naming the hung one; an environment that
+stops talking (no clock for run.hang_timeout + ``CLOCK_MARGIN`` while its process lives, longer
+than any wait of its own lasts) ends it naming the environment.  Each event is said on the
+terminal, logged on ``log/launcher`` and counted on ``stats/launcher`` (restarts,
 restarts.<service>, kills)."""
 
 from __future__ import annotations
@@ -13,14 +15,21 @@ import time
 from collections.abc import Callable
 
 from services.bus import Bus
-from services.config import Deployment
-from services.flight.health import HANG_STATUS
+from services.config import Deployment, DeploymentError, check_kill
+from services.flight.health import HANG_MARGIN, HANG_STATUS
 from services.ground import lifecycle
 from services.ground.processes import ServiceProcesses
-from services.interface.topics import log_topic, stats_topic
+from services.interface.topics import CLOCK, log_topic, stats_topic
 
 POLL = 0.2
 """Wall seconds between two looks at the services and the fault queue."""
+CLOCK_MARGIN = 2 * HANG_MARGIN
+"""Wall seconds past run.hang_timeout without a clock before the environment is taken for hung:
+its own waits end by run.hang_timeout + ``HANG_MARGIN`` and it then exits naming what it waited
+for."""
+SELF_FROZEN = 2.0
+"""Wall seconds between two looks that say this process was itself stopped: a silence it slept
+through says nothing of the others."""
 
 
 class Supervisor:
@@ -41,25 +50,39 @@ class Supervisor:
         self.restarts: dict[str, int] = {}
         self.kills = 0
         self.monitor_died = False  # then the report is recovered from its recording
+        run = dep.run
+        paced = run.nav_period / run.rate if run.mode == "realtime" else 0.0
+        self.clock_silence = run.hang_timeout + CLOCK_MARGIN + paced
 
-    def watch(self, bus: Bus, faults: queue.SimpleQueue) -> int | None:
+    def watch(self, bus: Bus, inbox: queue.SimpleQueue) -> int | None:
         """Until the environment ends: None when it completed the mission, else the run's
-        exit status (a stop signal, a hung or failed service, an environment that failed)."""
+        exit status (a stop signal, a hung or failed service, an environment that failed).
+        ``inbox`` holds ``(topic, message)`` of the kill faults and the clock."""
         env = self.services["environment"].popen
         sim_t = 0.0
+        heard: float | None = None  # wall time of the newest clock (None: none yet)
+        looked = time.monotonic()
         while env.poll() is None:
             if self.stopping():
                 return lifecycle.EXIT_FAILED  # the launcher makes it 128 + N
-            while not faults.empty():
-                _, msg = faults.get_nowait()
+            now = time.monotonic()
+            if heard is not None and now - looked > SELF_FROZEN:
+                heard = now  # this process was stopped: the silence is its own
+            looked = now
+            while not inbox.empty():
+                topic, msg = inbox.get_nowait()
                 sim_t = max(sim_t, msg.t)
-                if msg.body["kind"] == "kill":
+                if topic == CLOCK:
+                    heard = now
+                elif msg.body["kind"] == "kill":
                     self.kill(bus, msg.body["target"], msg.t)
             if (status := self._look(bus, sim_t)) is not None:
                 return status
+            if heard is not None and now - heard > self.clock_silence and env.poll() is None:
+                return self.silent_environment(bus, sim_t, now - heard)
             time.sleep(POLL)
         if env.returncode == HANG_STATUS:
-            return self.hung("environment")
+            return self.hung("environment", bus, sim_t)
         if env.returncode != 0:
             log = self.services.out / "logs" / "environment.log"
             self.say(f"environment exited with status {env.returncode}: "
@@ -72,7 +95,7 @@ class Supervisor:
         for p in self.services:
             name, rc = p.name, p.popen.poll()
             if rc == HANG_STATUS:
-                return self.hung(name)
+                return self.hung(name, bus, sim_t)
             if rc in (None, 0) or name == "environment":
                 continue
             policy = self.dep.restart_policy(name)
@@ -93,7 +116,7 @@ class Supervisor:
 
     def event(self, bus: Bus, level: str, text: str, t: float) -> None:
         """Say it, log it on the bus, and publish the launcher's counters."""
-        self.say(text)
+        self.say(text, error=level == "error")
         counters = {"restarts": sum(self.restarts.values()), "kills": self.kills}
         counters.update({f"restarts.{k}": v for k, v in self.restarts.items()})
         try:
@@ -105,16 +128,14 @@ class Supervisor:
             self.say(f"could not publish: {exc}")
 
     def kill(self, bus: Bus, target: str, t: float) -> None:
-        """A ``kill`` fault: SIGKILL the named service, as a crash would."""
+        """A ``kill`` fault: SIGKILL the named service, as a crash would, if the deployment
+        allows it (``check_kill``, as ``ddvi fault`` checks it)."""
         p = self.services.get(target)
-        if p is None:
-            why = "no such service"
-        elif target in ("environment", "monitor"):
-            why = "the environment and the monitor are not killed by faults (they end the run)"
-        elif p.popen.poll() is not None:
-            why = "it is not running"
-        else:
-            why = ""
+        try:
+            check_kill(self.dep, target)
+            why = "it is not running" if p is None or p.popen.poll() is not None else ""
+        except DeploymentError as exc:
+            why = str(exc)
         if why:
             self.event(bus, "warning", f"fault kill {target}: ignored ({why})", t)
             return
@@ -122,12 +143,20 @@ class Supervisor:
         self.kills += 1
         self.event(bus, "warning", f"fault kill {target}: killed (SIGKILL) at t = {t:.0f} s", t)
 
-    def hung(self, name: str) -> int:
+    def hung(self, name: str, bus: Bus, t: float) -> int:
         """``name`` gave up a lock-step wait (run.hang_timeout): end the run, with its word on
-        which service is hung (docs/health.md)."""
+        which part is hung (docs/health.md), said and logged for the report."""
         log = self.services.out / "logs" / f"{name}.log"
         said = [line for line in lifecycle.last_lines(log) if " is hung" in line]
         why = said[-1].split(" ERROR ", 1)[-1] if said else f"see {log}"
-        self.say(f"{why}; {name} gave up waiting (run.hang_timeout): the run is ended",
-                 error=True)  # fmt: skip
+        text = f"{why}; {name} gave up waiting (run.hang_timeout): the run is ended"
+        self.event(bus, "error", text, t)
+        return lifecycle.EXIT_FAILED
+
+    def silent_environment(self, bus: Bus, t: float, silence: float) -> int:
+        """The environment's process lives but no clock came for ``silence`` s: the time
+        master is frozen (no wait of its own lasts that long); end the run naming it."""
+        text = f"lock-step stalled at t = {t:.0f} s: no clock from environment in {silence:.0f} s"
+        text += f" (run.hang_timeout + {CLOCK_MARGIN:g} s): environment is hung; the run is ended"
+        self.event(bus, "error", text, t)
         return lifecycle.EXIT_FAILED

@@ -7,7 +7,9 @@
 
 ``--run`` finds a run by its folder (what ``ddvi run`` prints) or its name under ``--output``:
 its hub from the folder's ``bus.json`` and, on a secure bus, the observer's credentials (a
-subscribe-only user) from its ``security/`` folder; TOPICS (a topic pattern such as
+subscribe-only user) from its ``security/`` folder; a folder that holds credentials while its
+bus.json turns security off is refused (exit 2) unless ``--insecure`` says to connect without
+authentication anyway (``services.ground.credentials.find_run``); TOPICS (a topic pattern such as
 ``ctrl/*/status``, or a full ``ddvi/<run>/...`` key expression) defaults to every topic; a
 pattern that matches no topic of the topology is refused.
 ``--hub`` taps an insecure bus directly; ``--live`` serves the messages to Foxglove instead
@@ -51,6 +53,12 @@ def add_monitor_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser
     p.add_argument("--run", help="the run folder ddvi run prints, or the run's name")
     p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
     p.add_argument("--hub", help="an insecure bus's endpoint to connect to (instead of --run)")
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="connect without authentication although the run folder holds credentials and "
+        "its bus.json turns security off (refused otherwise; docs/security.md)",
+    )
     p.add_argument("--count", type=int, default=0, help="stop after N messages (0: no limit)")
     p.add_argument("--seconds", type=float, default=0.0, help="stop after S s (0: no limit)")
     p.add_argument(
@@ -135,7 +143,7 @@ def _tap_settings(args: argparse.Namespace) -> tuple[BusSettings, str]:
     (one line) when neither names a bus."""
     if getattr(args, "run", None):
         try:
-            bus = find_run(args.run, args.output, OBSERVER)
+            bus = find_run(args.run, args.output, OBSERVER, getattr(args, "insecure", False))
         except RunNotFoundError as exc:
             raise ValueError(str(exc)) from exc
         return bus.settings(), run_keyexpr(bus.run, args.keyexpr)

@@ -34,6 +34,7 @@ from services.interface.messages import HEADER, HEADER_KEYS, SCHEMAS, Message, S
 from services.interface.topics import (
     CLOCK,
     EXOSTATE,
+    RECORDED,
     SERVICES,
     TOPIC_SCHEMAS,
     TOPOLOGY,
@@ -61,6 +62,7 @@ __all__ = [
     "MAX_BATCH",
     "MAX_PAYLOAD",
     "REASONS",
+    "RECORDED",
     "SCHEMAS",
     "SERVICES",
     "TOPIC_SCHEMAS",

@@ -2,12 +2,14 @@
 
 Wire format: a msgpack map
 
-    {"schema": str, "version": int, "seq": int, "t": float, "src": str, "body": {...}}
+    {"schema": str, "version": int, "seq": int, "t": float, "src": str, "boot": int,
+     "body": {...}}
 
-``t`` is simulation time in seconds and ``src`` the publishing service. Bodies hold only plain
-msgpack values: ints, floats, bools, strings, maps with string keys, and (nested) lists of floats
-for arrays. No ext types and no numpy, so any zenoh subscriber in any language decodes a payload
-with a plain msgpack library.
+``t`` is simulation time in seconds, ``src`` the publishing service and ``boot`` its bus's
+random boot number (a receiver's sequence window is per publisher, topic and boot). Bodies hold
+only plain msgpack values: ints, floats, bools, strings, maps with string keys, and (nested)
+lists of floats for arrays. No ext types and no numpy, so any zenoh subscriber in any language
+decodes a payload with a plain msgpack library.
 
 A batch is several messages of one topic in one zenoh sample: a msgpack array of byte strings,
 each one message's payload as above, in publication order (``pack_batch``, ``unpack_batch``).
@@ -15,7 +17,7 @@ A lock-step publisher sends the samples of one flight-software step that way: on
 sample per topic and step instead of one per message, which is what the bus pays for.
 
 Inputs/outputs:
-    encode(schema, body, *, seq, t, src) -> bytes    validates, then packs
+    encode(schema, body, *, seq, t, src, boot) -> bytes    validates, then packs
     decode(payload, expected=None) -> Message        unpacks (bounded), then validates
     pack_batch(payloads) -> bytes                    several payloads in one sample
     unpack_batch(payload) -> list[bytes] | None      a batch's payloads; None: one message
@@ -69,6 +71,7 @@ MAX_BATCH = 64
 """Most messages in one batch; a batch's whole payload is also at most ``MAX_PAYLOAD``."""
 
 _HEADER_T = Float()  # the check of header.t
+MAX_UINT = 2**64 - 1  # seq and boot are msgpack's unsigned 64-bit integers
 
 
 def _lookup(name: object) -> Schema:
@@ -101,9 +104,14 @@ def _to_wire(value: Any) -> Any:
     return value.tolist() if isinstance(value, np.ndarray) else value
 
 
-def _check_header(schema: str, seq: object, t: object, src: object) -> tuple[int, float, str]:
-    if not is_int(seq) or int(seq) < 0:  # type: ignore[call-overload]
-        raise MessageError("bad_header", f"{schema} header.seq: expected int >= 0, got {seq!r}")
+def _check_header(
+    schema: str, seq: object, t: object, src: object, boot: object
+) -> tuple[int, float, str, int]:
+    for name, value in (("seq", seq), ("boot", boot)):
+        if not is_int(value) or not 0 <= int(value) <= MAX_UINT:  # type: ignore[call-overload]
+            raise MessageError(
+                "bad_header", f"{schema} header.{name}: expected int in [0, 2^64), got {value!r}"
+            )
     if not is_real(t):
         raise MessageError("bad_header", f"{schema} header.t: expected float, got {type_name(t)}")
     t_f = _HEADER_T.check(f"{schema} header.t", t)
@@ -111,10 +119,12 @@ def _check_header(schema: str, seq: object, t: object, src: object) -> tuple[int
         raise MessageError(
             "bad_header", f"{schema} header.src: expected non-empty str, got {src!r}"
         )
-    return int(seq), t_f, src  # type: ignore[call-overload]
+    return int(seq), t_f, src, int(boot)  # type: ignore[call-overload]
 
 
-def encode(schema: str, body: Mapping[str, Any], *, seq: int, t: float, src: str) -> bytes:
+def encode(
+    schema: str, body: Mapping[str, Any], *, seq: int, t: float, src: str, boot: int = 0
+) -> bytes:
     """Validate ``body`` against ``schema`` and pack the full message.
 
     Numpy arrays and numpy scalars are accepted and converted to plain lists/floats.
@@ -126,19 +136,35 @@ def encode(schema: str, body: Mapping[str, Any], *, seq: int, t: float, src: str
     if (
         wire is not None
         and type(seq) is int
-        and seq >= 0
+        and 0 <= seq <= MAX_UINT
+        and type(boot) is int
+        and 0 <= boot <= MAX_UINT
         and type(t) is float
         and math.isfinite(t)
         and type(src) is str
         and src
     ):
-        message = {"schema": schema, "version": compiled.version, "seq": seq, "t": t, "src": src}
+        message = {
+            "schema": schema,
+            "version": compiled.version,
+            "seq": seq,
+            "t": t,
+            "src": src,
+            "boot": boot,
+        }
     else:  # the field kinds name what is wrong, or normalise what the fast path refused
         spec = _lookup(schema)
-        seq_i, t_f, src_s = _check_header(schema, seq, t, src)
+        seq_i, t_f, src_s, boot_i = _check_header(schema, seq, t, src, boot)
         clean = check_body(schema, body)
         wire = {k: _to_wire(v) for k, v in clean.items()}
-        message = {"schema": schema, "version": spec.version, "seq": seq_i, "t": t_f, "src": src_s}
+        message = {
+            "schema": schema,
+            "version": spec.version,
+            "seq": seq_i,
+            "t": t_f,
+            "src": src_s,
+            "boot": boot_i,
+        }
     message["body"] = wire
     payload = _ENCODER.encode(message)
     if len(payload) > MAX_PAYLOAD:
@@ -202,11 +228,11 @@ def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Mes
         )
     if version != spec.version:
         raise MessageError("version", f"{name}: expected version {spec.version}, got {version}")
-    seq, t, src = _check_header(name, raw["seq"], raw["t"], raw["src"])
+    seq, t, src, boot = _check_header(name, raw["seq"], raw["t"], raw["src"], raw["boot"])
     body = raw["body"]
     if not isinstance(body, dict):
         raise MessageError("bad_header", f"{name} header.body: expected map, got {type_name(body)}")
-    return Message(name, version, seq, t, src, check_body(name, body))
+    return Message(name, version, seq, t, src, check_body(name, body), boot)
 
 
 def pack_batch(payloads: Collection[bytes]) -> bytes:
@@ -281,9 +307,10 @@ def _compiled_type(field: Field) -> Any:
 class _Header(msgspec.Struct, forbid_unknown_fields=True):
     schema: str
     version: int
-    seq: Annotated[int, msgspec.Meta(ge=0)]
+    seq: Annotated[int, msgspec.Meta(ge=0)]  # msgpack: < 2^64
     t: _Finite
     src: Annotated[str, msgspec.Meta(min_length=1)]
+    boot: Annotated[int, msgspec.Meta(ge=0)]  # msgpack: < 2^64
     body: msgspec.Raw
 
 
@@ -312,10 +339,10 @@ class _Compiled:
                 [
                     ("schema", Literal[spec.name]),  # type: ignore[valid-type]
                     ("version", Literal[spec.version]),  # type: ignore[valid-type]
-                    *[  # seq, t and src with the header's limits
+                    *[  # seq, t, src and boot with the header's limits
                         (f.name, f.type)
                         for f in msgspec.structs.fields(_Header)
-                        if f.name in ("seq", "t", "src")
+                        if f.name in ("seq", "t", "src", "boot")
                     ],
                     ("body", self.body),
                 ],
@@ -377,7 +404,7 @@ def _fast_decode(payload: bytes, expected: str | Collection[str] | None) -> Mess
             return None
         if body is None:
             return None
-        return Message(whole.schema, whole.version, whole.seq, whole.t, whole.src, body)
+        return Message(whole.schema, whole.version, whole.seq, whole.t, whole.src, body, whole.boot)
     try:
         head = _HEADER.decode(payload)
         compiled = _COMPILED.get(head.schema)
@@ -394,4 +421,4 @@ def _fast_decode(payload: bytes, expected: str | Collection[str] | None) -> Mess
         return None
     if body is None:
         return None
-    return Message(head.schema, head.version, head.seq, head.t, head.src, body)
+    return Message(head.schema, head.version, head.seq, head.t, head.src, body, head.boot)

@@ -33,6 +33,7 @@ class Message(msgspec.Struct, frozen=True):
     t: float
     src: str
     body: dict[str, Any]
+    boot: int = 0
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,13 @@ HEADER: tuple[HeaderField, ...] = (
     HeaderField("seq", "int >= 0", "count", "the publisher's sequence number on this topic"),
     HeaderField("t", "float", "s", "simulation time the message stands for (finite)"),
     HeaderField("src", "str", "", "the publishing service's name (non-empty)"),
+    HeaderField(
+        "boot",
+        "int >= 0",
+        "",
+        "the publisher's boot: a random number drawn when its bus opens; a restarted publisher "
+        "has a new one, and a receiver keeps a sequence window per boot",
+    ),
     HeaderField("body", "map", "", "the fields of the message type, all required, no others"),
 )
 """The header keys of every message, in wire order."""
@@ -212,6 +220,14 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
             "counters": IntMap(unit="count", doc="the bus's counters and the service's own"),
         },
         "a service's counters (received, rejected, late, ...)",
+    ),
+    Schema(
+        "recorded",
+        1,
+        {
+            "messages": Int(unit="count", doc="messages the monitor has recorded so far"),
+        },
+        "the monitor's acknowledgement: it has recorded the clock at t and what came before it",
     ),
     Schema(
         "log",

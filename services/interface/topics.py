@@ -24,6 +24,9 @@ CLOCK = "clock"
 EXOSTATE = "exo/state"
 """The exosystem state v(t) the controllers regulate against."""
 
+RECORDED = "recorded"
+"""The monitor's acknowledgement of what it has recorded (lock-step waits for the recorder)."""
+
 
 def truth_topic(craft: str) -> str:
     """``truth/<craft>``: the environment's inertial state of one craft (chief or deputy)."""
@@ -81,6 +84,7 @@ TOPIC_SCHEMAS: tuple[tuple[str, str], ...] = (
     ("ctrl/*/gains", "gains"),
     ("ctrl/*/status", "status"),
     ("fault/**", "fault"),
+    ("recorded", "recorded"),
     ("stats/*", "stats"),
     ("log/*", "log"),
 )
@@ -170,7 +174,7 @@ TOPOLOGY: tuple[Route, ...] = (
         CLOCK,
         "clock",
         ("environment",),
-        ("nav-<sc>", "ctrl-<sc>", "monitor", "ground-<pid>"),
+        ("nav-<sc>", "ctrl-<sc>", "monitor", "launcher", "ground-<pid>"),
         "every flight-software step (run.fsw_period) in lock-step, every navigation sample "
         "(run.nav_period) in real time, and a final one",
         budget="nav",
@@ -256,6 +260,15 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ground-<pid>",),
         _FLIGHT_RUNTIME,
         "on an operator's command (ddvi fault RUN link)",
+        budget="fsw",
+    ),
+    Route(
+        RECORDED,
+        "recorded",
+        ("monitor",),
+        ("environment", "monitor"),
+        "in lock-step, once the monitor has recorded the clock of every RECORDER_ACK_STEPS-th "
+        "flight-software step (services.flight.health)",
         budget="fsw",
     ),
     Route(

@@ -23,11 +23,13 @@ from services.bus import (
     LinkRule,
     LinkSpec,
     SequenceGuard,
+    SequenceGuards,
     open_session,
     queue_handler,
     wait_for_alive,
     zenoh_config,
 )
+from services.bus.guards import BOOTS_KEPT, JUMP_CONFIRM, REPLAY_WINDOW
 from services.ground.launcher import free_port
 from services.interface import MAX_BATCH, MAX_PAYLOAD, Message, MessageError, encode, pack_batch
 from tests.support import unique_run_name, wait_until
@@ -308,11 +310,13 @@ def test_deployment_link_rules_apply_per_publisher(
         assert inbox.get_nowait()[1].src == "nav-deputy1"
 
 
-def test_a_refused_message_is_not_observed(
+def test_a_message_refused_by_origin_is_not_observed_one_refused_by_number_is(
     sessions: tuple[zenoh.Session, zenoh.Session], run: str
 ) -> None:
-    """A message refused by its body's identity or by the replay window reaches neither the
-    handler nor the observer (a lock-step wait must not count it as accounted for)."""
+    """A message refused by its body's identity reaches neither the handler nor the observer
+    (a lock-step wait must not count it as accounted for); one refused by the replay window
+    reaches only the observer: a number proves nothing of who sent it, and a forged message
+    that took the genuine one's number first must not leave a lock-step wait waiting."""
     hub, svc = sessions
     inbox: Inbox = queue.Queue()
     seen: Inbox = queue.Queue()
@@ -325,14 +329,22 @@ def test_a_refused_message_is_not_observed(
         nav.publish("nav/deputy1/state", "nav", nav_body(2.0), t=110.0)
         assert [seen.get(timeout=TIMEOUT)[1].t for _ in range(2)] == [100.0, 110.0]
         for payload in (
-            encode("nav", nav_body(9.0), seq=first, t=100.0, src="nav-deputy1"),  # old seq
-            encode("nav", nav_body(9.0, "deputy2"), seq=first + 2, t=120.0, src="nav-deputy1"),
+            encode("nav", nav_body(9.0), seq=first, t=100.0, src="nav-deputy1", boot=nav.boot),
+            encode(
+                "nav",
+                nav_body(9.0, "deputy2"),
+                seq=first + 2,
+                t=120.0,
+                src="nav-deputy1",
+                boot=nav.boot,
+            ),
         ):
             svc.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_until(lambda: rx.counters["rejected"] == 2)
         c = rx.counters
         assert c["rejected.duplicate"] == 1 and c["rejected.identity"] == 1
-        assert seen.empty() and inbox.qsize() == 2  # the two genuine ones only
+        assert seen.get(timeout=TIMEOUT)[1].seq == first  # the replay, accounted for
+        assert seen.empty() and inbox.qsize() == 2  # handled: the two genuine ones only
 
 
 def test_a_link_rule_added_at_run_time_takes_the_next_message(
@@ -373,11 +385,11 @@ def test_a_replay_on_a_wildcard_key_meets_the_topic_replay_window(
         connect(tx, inbox, "nav/deputy1/state")
         seq = tx.publish("nav/deputy1/state", "nav", nav_body(1.0), t=1.0)
         assert inbox.get(timeout=TIMEOUT)[1].seq == seq
-        replay = encode("nav", nav_body(1.0), seq=seq, t=1.0, src="nav-deputy1")
+        replay = encode("nav", nav_body(1.0), seq=seq, t=1.0, src="nav-deputy1", boot=tx.boot)
         for key in (f"ddvi/{run}/nav/*/state", f"ddvi/{run}/**"):
             svc.put(key, replay, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_until(lambda: rx.counters["rejected.duplicate"] == 2)
-        fresh = encode("nav", nav_body(2.0), seq=seq + 1, t=2.0, src="nav-deputy1")
+        fresh = encode("nav", nav_body(2.0), seq=seq + 1, t=2.0, src="nav-deputy1", boot=tx.boot)
         svc.put(f"ddvi/{run}/nav/*/state", fresh, congestion_control=zenoh.CongestionControl.BLOCK)
         assert inbox.get(timeout=TIMEOUT)[0] == "nav/deputy1/state"
         assert inbox.empty()
@@ -415,36 +427,62 @@ def test_publish_validates_and_closed_bus_refuses(
 
 def test_sequence_guard_accepts_each_seq_once_in_any_order() -> None:
     guard = SequenceGuard(window=4)
-    assert [guard.check(s, float(s)) for s in (0, 2, 1, 3)] == [None] * 4  # reordered: fine
-    assert guard.check(2, 2.0) == "duplicate"
-    assert guard.check(10, 10.0) is None
-    assert guard.check(1, 1.0) == "stale"  # behind the window, from the past: a replay
-    assert guard.check(7, 7.0) is None  # inside the window, not seen yet
-    assert guard.check(0, 11.0) is None  # far older seq, newer time: the publisher restarted
-    assert guard.check(0, 11.0) == "duplicate"
-    early = SequenceGuard(window=256)
-    assert [early.check(s, float(s)) for s in range(5)] == [None] * 5
-    assert early.check(1, 100.0) is None  # restarted before its first window was full
-    assert early.check(4, 101.0) is None  # the old run's 4 is forgotten
+    assert [guard.check(s) for s in (0, 2, 1, 3)] == [None] * 4  # reordered: fine
+    assert guard.check(2) == "duplicate"
+    assert guard.check(10) is None
+    assert guard.check(1) == "stale"  # behind the window: a replay
+    assert guard.check(7) is None  # inside the window, not seen yet
+    assert guard.check(7) == "duplicate"
     with pytest.raises(ValueError, match="window"):
         SequenceGuard(window=0)
+    with pytest.raises(ValueError, match="ahead"):
+        SequenceGuard(ahead=0)
+
+
+def test_one_far_sequence_number_never_moves_the_window() -> None:
+    """A number no publisher of the boot has reached (a stolen credential's 2^64 - 1, then
+    2^62) is refused as a jump and leaves the mark where it was: the genuine traffic after it
+    is taken; what the receiver knows it missed (its budget's drops) widens the reach, and a
+    publisher that really is that far on is followed after ``JUMP_CONFIRM`` in a row."""
+    guard = SequenceGuard()
+    assert [guard.check(s) for s in range(10)] == [None] * 10
+    assert guard.check(2**64 - 1) == "jump"
+    assert guard.check(2**62) == "jump"
+    assert [guard.check(s) for s in range(10, 20)] == [None] * 10
+    assert guard.check(19 + REPLAY_WINDOW) is None  # within reach
+    assert guard.check(19 + 2 * REPLAY_WINDOW + 100, slack=100) is None  # it missed 100
+    far = 10_000
+    assert [guard.check(far + k) for k in range(JUMP_CONFIRM)] == ["jump"] * (JUMP_CONFIRM - 1) + [
+        None
+    ]
+    assert guard.check(far + JUMP_CONFIRM) is None
+    assert guard.check(far - REPLAY_WINDOW) == "stale"
+    behind_a_link = SequenceGuard(ahead=None)
+    assert [behind_a_link.check(s) for s in (0, 2**62, 2**62 + 1)] == [None] * 3
 
 
 @settings(max_examples=300, deadline=None)
 @given(
     st.integers(1, 8),
-    st.lists(st.tuples(st.integers(0, 40), st.integers(0, 40)), max_size=60),
+    st.integers(1, 8),
+    st.lists(st.integers(0, 60), max_size=80),
 )
-def test_sequence_guard_matches_its_definition(window: int, arrivals: list) -> None:
+def test_sequence_guard_matches_its_definition(window: int, ahead: int, arrivals: list) -> None:
     """The guard's bit mask against the plain words of its docstring, on any arrivals: each
-    seq once, none at or below highest - window, a restart when a seq at or below the highest
-    comes with a time after the newest."""
-    guard = SequenceGuard(window=window)
+    seq once, none at or below highest - window, none past highest + ahead unless it ends
+    ``JUMP_CONFIRM`` consecutive such numbers (the window then follows it)."""
+    guard = SequenceGuard(window=window, ahead=ahead)
     seen: set[int] = set()
-    highest, newest = -1, -float("inf")
-    for seq, t in arrivals:
-        if seq <= highest and t > newest:
-            seen, highest, want = set(), -1, None
+    highest = -1
+    run: list[int] = []
+    for seq in arrivals:
+        if highest >= 0 and seq - highest > ahead:
+            run = [*run, seq] if run and seq == run[-1] + 1 else [seq]
+            if len(run) < JUMP_CONFIRM:
+                assert guard.check(seq) == "jump", seq
+                continue
+            seen, highest = set(), seq - 1
+        run = []
         if seq <= highest - window:
             want = "stale"
         elif seq in seen:
@@ -452,8 +490,29 @@ def test_sequence_guard_matches_its_definition(window: int, arrivals: list) -> N
         else:
             want = None
             seen.add(seq)
-            highest, newest = max(highest, seq), max(newest, t)
-        assert guard.check(seq, float(t)) == want, (seq, t)
+            highest = max(highest, seq)
+        assert guard.check(seq) == want, seq
+
+
+def test_each_boot_of_a_publisher_has_its_own_window() -> None:
+    """A restarted publisher counts from 0 under a new boot and is taken at once; a message
+    that claims another boot, however far its number, cannot touch the window of the boot in
+    flight; a bounded number of boots is kept."""
+    guards = SequenceGuards()
+
+    def msg(seq: int, boot: int) -> Message:
+        return Message("nav", 2, seq, float(seq), "nav-deputy1", {}, boot)
+
+    assert [guards.check(msg(s, 1), "nav/deputy1/state") for s in range(300)] == [None] * 300
+    assert guards.check(msg(0, 2), "nav/deputy1/state") is None  # restarted
+    assert guards.check(msg(2**64 - 1, 3), "nav/deputy1/state") is None  # a boot of its own
+    assert guards.check(msg(300, 1), "nav/deputy1/state") is None  # boot 1 goes on
+    assert guards.check(msg(299, 1), "nav/deputy1/state") == "duplicate"
+    assert guards.check(msg(1, 2), "nav/deputy1/state") is None
+    assert guards.check(msg(1, 1), "nav/deputy2/state") is None  # another topic, another window
+    for boot in range(100, 100 + BOOTS_KEPT):  # as many boots as are kept push boot 1 out
+        guards.check(msg(0, boot), "nav/deputy1/state")
+    assert guards.check(msg(5, 1), "nav/deputy1/state") is None  # forgotten: a new window
 
 
 def test_replays_and_link_duplicates_are_refused_once_counted(
@@ -476,7 +535,7 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
         rx.subscribe("nav/deputy1/state", queue_handler(inbox), "nav")
         rx.subscribe("nav/deputy2/state", queue_handler(dups), "nav")
         connect(tx, probe, "probe")
-        first = encode("nav", nav_body(1.0), seq=0, t=10.0, src="nav-deputy1")
+        first = encode("nav", nav_body(1.0), seq=0, t=10.0, src="nav-deputy1", boot=tx.boot)
         for payload in (first, first):  # the second is a replay
             svc.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
         assert inbox.get(timeout=TIMEOUT)[1].seq == 0
@@ -485,7 +544,7 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
         for seq in range(1, 300):
             tx.publish("nav/deputy1/state", "nav", nav_body(3.0), t=10.0 + seq)
         assert [inbox.get(timeout=TIMEOUT)[1].seq for _ in range(299)] == list(range(1, 300))
-        old = encode("nav", nav_body(2.0), seq=5, t=15.0, src="nav-deputy1")
+        old = encode("nav", nav_body(2.0), seq=5, t=15.0, src="nav-deputy1", boot=tx.boot)
         svc.put(key, old, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_until(lambda: rx.counters["rejected.stale"] == 1)
         for _ in range(5):  # at t = 0: due at once, each with its copy

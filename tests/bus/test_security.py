@@ -64,8 +64,8 @@ def test_access_control_gives_each_user_its_topics_only() -> None:
     assert set(_puts(acl, OPERATOR)) == {
         p + f"fault/{k}" for k in ("kill", "panel", "bias", "link")
     }
-    assert _puts(acl, OBSERVER) == [] and set(_puts(acl, "monitor")) == {
-        p + "stats/monitor", p + "log/monitor"}  # fmt: skip
+    assert _puts(acl, OBSERVER) == []
+    assert set(_puts(acl, "monitor")) == {p + "recorded", p + "stats/monitor", p + "log/monitor"}
     assert not any("fault" in k for u in USERS if u != OPERATOR for k in _puts(acl, u))
 
 

@@ -1,6 +1,6 @@
 """When a controller's step may fly (``services.flight.step_gate.StepGate``): on the sample
 measured by T - delay once it is accounted for, without navigation once it is away, said and
-given up in lock-step, flown safe on stale navigation in real time."""
+given up in lock-step, flown safe on stale navigation in real time and in lock-step."""
 
 from __future__ import annotations
 
@@ -100,3 +100,33 @@ def test_real_time_flies_safe_on_stale_navigation_and_says_so_once_each_way() ->
     gate.clock(300.0 + 120.0)
     assert gate.ready(300.0)  # real time does not wait past the limit
     StepGate(_run(), "lqr", 10.0, 0.0).check(60.0, lambda _: None)  # lock-step: no clock yet
+
+
+def test_lock_step_flies_safe_on_a_sample_held_past_the_limit_and_says_so_once_each_way() -> None:
+    """In lock-step a step waits until its sample is accounted for, but a sample held on its
+    link (a run-time delay the step does not know of) leaves the step only an older one: past
+    run.nav_stale_limit it flies the safe attitude, as in real time."""
+    gate = StepGate(_run(), "lqr", nav_period=10.0, delay=0.0)
+    assert gate.stale(0.0, None, first=True) == (False, None)  # nothing measured yet
+    assert gate.stale(600.0, 600.0, first=False) == (False, None)  # nominal: its own sample
+    gate.clock(720.0)
+    gate.accounted("nav", 720.0)  # held on its link: accounted for, never flown on
+    gate.accounted("exo", 720.0)
+    assert gate.ready(720.0)  # the step does not wait for what its link holds
+    assert gate.stale(720.0, 600.0, first=False) == (False, None)  # 120 s: two steps, the limit
+    safe, said = gate.stale(780.0, 600.0, first=False)
+    assert safe and said == "navigation 180 s old (limit 120 s): flying the safe attitude"
+    assert gate.stale(50000.0, 600.0, first=False) == (True, None)  # said once
+    back = gate.stale(50040.0, 50040.0, first=False)
+    assert back == (False, "navigation is back: flying the control law")
+
+
+def test_no_step_flies_safe_before_its_first_sample_is_due() -> None:
+    """A step before a delayed link's first sample can have come holds zero, in either mode:
+    its navigation is not stale, there is none yet."""
+    for mode in ("lockstep", "realtime"):
+        gate = StepGate(_run(mode), "lqr", nav_period=10.0, delay=300.0)
+        assert gate.stale(0.0, None, first=True) == (False, None)
+        assert gate.stale(240.0, None, first=False) == (False, None)  # due at 300 s
+        safe, said = gate.stale(480.0, None, first=False)  # due from 300 s, never came
+        assert safe and said == "no navigation yet (limit 120 s): flying the safe attitude"

@@ -153,7 +153,8 @@ def test_console_script_runs_as_a_process():
 @pytest.mark.integration
 def test_a_command_imports_only_what_it_needs():
     """`ddvi fault` parses its arguments without scipy or any part of the monitor (recording,
-    status, report, tap), so it lands sooner in a running mission."""
+    status, report, tap), so it lands sooner in a running mission: of the ground, only itself
+    and the run folder it reads the run's deployment from."""
     code = (
         "import sys; from services.cli import build_parser; "
         "a = build_parser('fault').parse_args(['fault', 'r', 'panel', 'd', '--stuck-angle', '30']);"
@@ -161,9 +162,8 @@ def test_a_command_imports_only_what_it_needs():
         "print(a.stuck_angle, 'scipy' in sys.modules, ','.join(ground))"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0 and r.stdout.split() == ["30.0", "False", "services.ground.faults"], (
-        r.stdout + r.stderr
-    )
+    ground = "services.ground.faults,services.ground.runfolder"
+    assert r.returncode == 0 and r.stdout.split() == ["30.0", "False", ground], r.stdout + r.stderr
 
 
 def test_the_whole_parser_has_every_commands_arguments():

@@ -23,7 +23,8 @@ import pytest
 import zenoh
 
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
-from services.config import deployment_from_table, load_deployment
+from services.cli import main as ddvi
+from services.config import deployment_from_table, load_deployment, resolve
 from services.flight.inprocess import run_in_process
 from services.ground.recording import read_recording
 from services.interface import MAX_PAYLOAD, encode, schema_for_topic, topics
@@ -50,7 +51,7 @@ learning = {{ learn_at_orbits = 9.0 }}   # explores for the whole run
 
 # what each service subscribes to (its declared inputs)
 INPUTS = {
-    "environment": ["cmd/*/att"],
+    "environment": ["cmd/*/att", "recorded"],
     "nav-lqr": ["truth/*"],
     "nav-ddvi": ["truth/*"],
     "ctrl-lqr": ["nav/lqr/state", "exo/state", "clock"],
@@ -275,6 +276,13 @@ class Mission:
         cmd = [sys.executable, "-m", "services.cli", "fault", self.run, *args, "--hub", self.hub]
         return subprocess.run(cmd, capture_output=True, text=True, timeout=60)
 
+    def fault_by_folder(self, *args: str) -> subprocess.CompletedProcess:
+        """``ddvi fault`` given the run folder, not a hub: it checks the fault against the
+        run's deployment (the folder's copy) before it sends anything."""
+        folder = str(self.runs / self.run)
+        cmd = [sys.executable, "-m", "services.cli", "fault", folder, *args]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+
     def finish(self) -> tuple[int, Path, str]:
         try:
             _, err = self.launcher.communicate(timeout=120)
@@ -325,8 +333,10 @@ def test_killed_services_are_restarted_and_the_mission_completes(
     mission.wait_for(killed_at + 3000.0)
     mission.kill("nav-lqr")
     rc, out, err = mission.finish()
-    # completed, with the commands of the killed controller missing: exit status 3
-    assert rc == 3 and "missing" in err, err[-3000:]
+    # completed, degraded: a command of the killed controller missing, or the LQR deputy on
+    # the safe attitude while its navigation was away and its newest sample too old: status 3
+    degraded = "missing" in err or "safe attitude flown by ctrl-lqr" in err
+    assert rc == 3 and degraded, err[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
     services = summary["messages"]["services"]
@@ -464,16 +474,20 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
                       "cmd/*/att", "--loss", "0.5")  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     assert "environment now receives cmd/*/att from ctrl-lqr with loss 0.5" in r.stdout
-    # a glob reaches every controller: each one's answer is printed
+    # a glob reaches every controller: each one's answer is printed; reached by --hub alone,
+    # the run's deployment is checked by the services, each of which refuses a link from no
+    # service of it
     r = mission.fault("link", "--from", "nobody", "--to", "ctrl-*", "--delay", "0")
-    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.returncode == 1, r.stdout + r.stderr
     for ctrl in ("ctrl-lqr", "ctrl-ddvi"):
-        assert f"{ctrl}: fault link ctrl-*: {ctrl} now receives * from nobody" in r.stdout
+        said = f"{ctrl}: fault link ctrl-*: refused at {ctrl} (link.publisher: 'nobody' "
+        assert said in r.stdout, r.stdout
     r = mission.fault("link", "--from", "nav/ddvi", "--to", "ctrl/ddvi", "--delay", "120")
     assert r.returncode == 0 and "ctrl-ddvi now receives * from nav-ddvi with delay 120" in (
         r.stdout), r.stdout + r.stderr  # fmt: skip
     r = mission.fault("link", "--from", "ctrl-lqr", "--to", "environment", "--loss", "2")
-    assert r.returncode == 1 and "refused" in r.stdout, r.stdout + r.stderr
+    said = "ddvi fault: link.loss: expected a probability in [0, 1], got 2.0"
+    assert r.returncode == 2 and said in r.stderr and not r.stdout, r.stdout + r.stderr
     rc, out, err = mission.finish()
     # completed, with the commands the faulted link dropped missing: exit status 3
     assert rc == 3 and "missing" in err, err[-3000:]
@@ -488,12 +502,176 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
     assert summary["completed"] is True
 
 
+SHORT_ORBITS = 12.0
+"""The short mission's length: 65,160 s, which a 50,000 s link delay fits."""
+SHORT_SECONDS = 65160
+
+
+def _short_mission() -> str:
+    """The default mission (its LQR and DDVI deputies) cut to SHORT_ORBITS, on an open bus the
+    test's session joins: a Mission template (``{port}``)."""
+    text = resolve("rendezvous").read_text()
+    text = text.replace("orbits = 40.0", f"orbits = {SHORT_ORBITS}", 1)
+    text = text.replace("{", "{{").replace("}", "}}")  # its inline tables, for str.format
+    return text + "\n[bus]\nport = {port}\nsecurity = false\n"
+
+
+ZERO = [0.0, 0.0, 0.0]
+
+
+def test_a_link_fault_obeys_the_deployment_and_stale_navigation_flies_the_safe_attitude(
+    start_mission: Callable[[str], Mission],
+) -> None:
+    """`ddvi fault RUN link` is checked as the run's deployment checks its [[link]]s: a delay
+    longer than the mission is refused with the limit named, exit 2, and nothing sent.  A legal
+    50,000 s delay on nav-lqr -> ctrl-lqr leaves the LQR controller's lock-step steps only
+    ever older samples: past run.nav_stale_limit (two steps) it flies the safe attitude,
+    logged, counted and reported, and the completed run exits 3.  The DDVI deputy flies
+    exactly as in a clean run of the same deployment."""
+    mission = start_mission(_short_mission())
+    mission.wait_for(600.0)
+    r = mission.fault_by_folder("link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--delay", "1e300")
+    said = (
+        f"ddvi fault: link: delay + jitter = 1e+300 s is not shorter than the mission "
+        f"({SHORT_SECONDS} s): every message on it would be lost; give a delay + jitter below "
+        f"{SHORT_SECONDS} s"
+    )
+    assert r.returncode == 2 and r.stderr.strip() == said and not r.stdout, r.stdout + r.stderr
+    r = mission.fault_by_folder("link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--delay", "50000")
+    applied = "ctrl-lqr: fault link ctrl-lqr: ctrl-lqr now receives * from nav-lqr with delay 50000"
+    assert r.returncode == 0 and applied in r.stdout, r.stdout + r.stderr
+    rc, out, err = mission.finish()
+    assert rc == 3 and "safe attitude flown by ctrl-lqr (" in err, err[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] is True
+    safe = summary["outcome"]["health"]["safe_attitude_steps"]
+    assert list(safe) == ["ctrl-lqr"] and safe["ctrl-lqr"] > 0, safe
+    report = (out / "report.md").read_text()
+    assert f"**safe attitude flown** (navigation too old): ctrl-lqr {safe['ctrl-lqr']} steps" in (
+        report
+    )
+    log = (out / "logs" / "ctrl-lqr.log").read_text()
+    assert "s old (limit 120 s): flying the safe attitude" in log, log[-3000:]
+    records, complete = read_recording(out / "recording.mcap")
+    assert complete
+    # only the legal fault went out
+    faults = [r.data["body"] for r in records if r.topic == topics.fault_topic("link")]
+    assert [f["params"]["delay"] for f in faults] == [50000.0], faults
+    # from its first safe step to the end, the LQR deputy flies the safe attitude
+    flown = sorted(
+        (r.data["body"]["for_t"], r.data["body"]["sigma"])
+        for r in records
+        if r.topic == "cmd/lqr/att"
+    )
+    first = next(t for t, sigma in flown if sigma == ZERO and t > 0.0)
+    after = [sigma for t, sigma in flown if t >= first]
+    assert all(sigma == ZERO for sigma in after) and len(after) <= safe["ctrl-lqr"]
+    assert len(after) > safe["ctrl-lqr"] - 3  # the last commands may go out unrecorded
+
+    clean = start_mission(_short_mission())
+    rc, clean_out, err = clean.finish()
+    assert rc == 0, err[-3000:]
+    clean_summary = json.loads((clean_out / "summary.json").read_text())
+    assert summary["deputies"]["ddvi"] == clean_summary["deputies"]["ddvi"]
+    lqr, clean_lqr = summary["deputies"]["lqr"], clean_summary["deputies"]["lqr"]
+    assert lqr["final_along_track_error_m"] != clean_lqr["final_along_track_error_m"]
+
+
+REFUSED_FAULTS: list[tuple[list[str], str]] = [
+    (
+        ["link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--delay", "60000", "--jitter", "6000"],
+        f"link: delay + jitter = 66000 s is not shorter than the mission ({SHORT_SECONDS} s)",
+    ),
+    (
+        ["link", "--from", "nobody", "--to", "ctrl-lqr"],
+        "link.publisher: 'nobody' matches no service; services: monitor, nav-lqr, ctrl-lqr",
+    ),
+    (
+        ["link", "--from", "ctrl-*", "--to", "ctrl-nobody"],
+        "link.subscriber: 'ctrl-nobody' matches no service",
+    ),
+    (
+        ["link", "--from", "environment", "--to", "nav-*"],
+        "link: impairs the environment's truth to navigation",
+    ),
+    (
+        ["link", "--from", "nav-lqr", "--to", "monitor"],
+        "link.subscriber: the monitor records what is published, unimpaired",
+    ),
+    (
+        ["link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--loss", "1.5"],
+        "link.loss: expected a probability in [0, 1], got 1.5",
+    ),
+    (
+        ["link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--jitter", "-1"],
+        "link.jitter: expected a finite value >= 0, got -1.0",
+    ),
+    (
+        ["kill", "ctrl-nobody"],
+        "kill: 'ctrl-nobody' is not a service of this run; kill one of nav-lqr, ctrl-lqr, "
+        "nav-ddvi, ctrl-ddvi",
+    ),
+    (["kill", "environment"], "kill: the environment is not killed by faults"),
+    (
+        ["panel", "nobody", "--area-factor", "0.8"],
+        "panel.deputy: 'nobody' is not one of lqr, ddvi",
+    ),
+    (
+        ["bias", "lqr", "--position", "2e7", "0", "0"],
+        "bias.position_bias[0]: expected a finite number in [-1e+07, 1e+07], got 20000000.0",
+    ),
+    (
+        ["bias", "ddvi", "--position", "0", "0", "0", "--velocity", "0", "-20000", "0"],
+        "bias.velocity_bias[1]: expected a finite number in [-10000, 10000], got -20000.0",
+    ),
+    (
+        ["bias", "lqr", "--position", "0", "0", "0", "--area-factor", "2"],
+        "bias: area_factor and normal_angle belong to panel faults, not 'bias'",
+    ),
+]
+"""A fault the short mission's deployment refuses, and what ``ddvi fault`` says of it."""
+
+
+def _run_folder(tmp_path: Path, port: int) -> Path:
+    """A run folder of the short mission, as the launcher writes it, whose hub nobody serves."""
+    folder = tmp_path / "short"
+    folder.mkdir()
+    bus = {"run": "short", "hub": f"tcp/127.0.0.1:{port}", "security": False}
+    (folder / "bus.json").write_text(json.dumps(bus))
+    (folder / "deployment.toml").write_text(_short_mission().format(port=port))
+    return folder
+
+
+@pytest.mark.parametrize(("args", "said"), REFUSED_FAULTS)
+def test_a_fault_the_runs_deployment_refuses_is_one_line_and_exit_2(
+    args: list[str], said: str, tmp_path: Path, free_port: int, capsys: pytest.CaptureFixture
+) -> None:
+    """Every kind of `ddvi fault` is checked against the run's deployment, as its own [[link]],
+    [[fault]] tables and services are, before anything is sent: one line naming the limit,
+    exit 2 (a run folder whose hub nobody serves: a fault that passed would say so, exit 1)."""
+    folder = _run_folder(tmp_path, free_port)
+    assert ddvi(["fault", str(folder), *args, "--timeout", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ddvi fault: ") and said in err and len(err.splitlines()) == 1, err
+
+
+def test_a_fault_the_runs_deployment_allows_goes_on_to_the_run(
+    tmp_path: Path, free_port: int
+) -> None:
+    """The same checks pass a legal fault, which then looks for the run (none here: exit 1)."""
+    folder = _run_folder(tmp_path, free_port)
+    link = ["link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--delay", "50000"]
+    cmd = [sys.executable, "-m", "services.cli", "fault", str(folder), *link, "--timeout", "0.5"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and "no clock from run 'short'" in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize(
     ("args", "status", "text"),
     [
         (["link", "--to", "ctrl-a"], 2, "give --from PUBLISHER and --to SUBSCRIBER"),
         (["kill"], 2, "ddvi fault kill: name the target"),
-        (["panel", "a"], 2, "give --area-factor F > 0 and/or --stuck-angle DEG in (0, 90)"),
+        (["panel", "a"], 2, "give --area-factor F in (0, 100] and/or --stuck-angle DEG in (0, 90)"),
         (["panel", "a", "--stuck-angle", "95"], 2, "normal_angle must lie in (0, 90) deg"),
         (["bias", "a"], 2, "give --position X Y Z"),
         (["kill", "ctrl-a", "--timeout", "0.5"], 1, "no clock from run 'norun'"),

@@ -39,9 +39,12 @@ END = 8100.0  # the mission's end (1.5 orbits of 5400 s), inside every receiver'
 MARK = 0.777  # the forged commands' attitude: no genuine command flies it
 
 
-def _forged(run: str, t: float, next_seq: dict[str, int]) -> list[tuple[str, str, bytes]]:
+def _forged(
+    run: str, t: float, next_seq: dict[str, int], boots: dict[str, int]
+) -> list[tuple[str, str, bytes]]:
     """(credential, key, payload) of every forgery at simulation time ``t``; ``next_seq``: the
-    genuine publishers' next seq per topic (the forgeries take them: fresh)."""
+    genuine publishers' next seq per topic (the forgeries take them: fresh), ``boots`` their
+    boot per topic (the forgeries claim it: the genuine publisher's window)."""
     p = f"ddvi/{run}/"
     sigma = np.array([0.0, 0.0, MARK])
     other = {"sc": "ddvi", "sigma": sigma, "for_t": END}  # ctrl-lqr commanding the DDVI deputy
@@ -50,11 +53,13 @@ def _forged(run: str, t: float, next_seq: dict[str, int]) -> list[tuple[str, str
     gains = {"sc": "ddvi", "K": np.zeros((1, 4)), "L": np.zeros((1, 5)), "source": "ddvi",
              "iteration": 1, "converged": True}  # fmt: skip
     cmd, gain = next_seq.get("cmd/lqr/att", 0), next_seq.get("ctrl/lqr/gains", 0)
+    ctrl = {"src": "ctrl-lqr", "boot": boots["cmd/lqr/att"]}
+    nav = {"src": "nav-lqr", "boot": boots.get("stats/nav-lqr", boots["nav/lqr/state"])}
     return [
-        ("ctrl-lqr", p + "cmd/lqr/att", encode("cmd", other, seq=cmd, t=t, src="ctrl-lqr")),
-        ("ctrl-lqr", p + "cmd/lqr/att", encode("cmd", replay, seq=0, t=60.0, src="ctrl-lqr")),
-        ("nav-lqr", p + "stats/nav-lqr", encode("stats", stats, seq=10**6, t=END, src="nav-lqr")),
-        ("ctrl-lqr", p + "ctrl/lqr/gains", encode("gains", gains, seq=gain, t=t, src="ctrl-lqr")),
+        ("ctrl-lqr", p + "cmd/lqr/att", encode("cmd", other, seq=cmd, t=t, **ctrl)),
+        ("ctrl-lqr", p + "cmd/lqr/att", encode("cmd", replay, seq=0, t=60.0, **ctrl)),
+        ("nav-lqr", p + "stats/nav-lqr", encode("stats", stats, seq=10**6, t=END, **nav)),
+        ("ctrl-lqr", p + "ctrl/lqr/gains", encode("gains", gains, seq=gain, t=t, **ctrl)),
     ]
 
 
@@ -74,6 +79,7 @@ def _attack(out: Path, info: dict[str, Any]) -> int:
             assert time.monotonic() < deadline
             time.sleep(0.05)
     next_seq: dict[str, int] = {}
+    boots: dict[str, int] = {}
     t = 0.0
     with (
         contextlib.closing(watch),
@@ -88,10 +94,11 @@ def _attack(out: Path, info: dict[str, Any]) -> int:
             for part in unpack_batch(payload) or (payload,):
                 msg = decode(part)
                 next_seq[topic] = max(next_seq.get(topic, 0), msg.seq + 1)
+                boots[topic] = msg.boot
                 if topic == "clock":
                     t = max(t, msg.t)
         sessions = {"ctrl-lqr": ctrl, "nav-lqr": nav}
-        forged = _forged(run, t, next_seq)
+        forged = _forged(run, t, next_seq, boots)
         for user, key, payload in forged:
             sessions[user].put(key, payload)
         sub.undeclare()

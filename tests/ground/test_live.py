@@ -68,6 +68,7 @@ TOPOLOGY_OF_SHORT = {
     **{f"fault/{k}": "fault" for k in ("kill", "panel", "bias", "link")},
     **{f"stats/{s}": "stats" for s in SERVICES},
     **{f"log/{s}": "log" for s in SERVICES},
+    "recorded": "recorded",
 }
 
 
@@ -193,7 +194,7 @@ def test_the_server_sends_the_recordings_json_at_simulation_time(
         got = next(m for m in client.messages if m.topic == "nav/lqr/state")
         assert got.timestamp == ns(12.5)
         assert got.json() == {"schema": "nav", "version": 2, "seq": 3, "t": 12.5,
-                              "src": "nav-lqr", "body": {"sc": "lqr",
+                              "src": "nav-lqr", "boot": 0, "body": {"sc": "lqr",
                               "x_hill": list(range(6)), "z_hill": list(range(6)),
                               "cov": np.eye(6).tolist(), "altitude": 3e5,
                               "valid": True}}  # fmt: skip

@@ -40,7 +40,9 @@ def test_hill_states_match_rv_to_hill() -> None:
 def _ingest(
     data: RunData, topic: str, schema: str, body: dict, t: float, src: str = "test"
 ) -> None:
-    data.ingest(topic, decode(encode(schema, body, seq=0, t=t, src=src), schema))
+    msg = decode(encode(schema, body, seq=0, t=t, src=src), schema)
+    data.received(msg)  # as the monitor: counted against its publisher's stats, then used
+    data.ingest(topic, msg)
 
 
 def _log(data: RunData, service: str, t: float) -> None:

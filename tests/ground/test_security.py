@@ -186,10 +186,10 @@ def _attack(out: Path, info: dict[str, Any], proc: subprocess.Popen) -> dict[str
 
 def _flight(records: list[Recorded], owners: bool = True) -> list[str]:
     """The flight messages of a recording from their topics' publishers (``owners``), or from
-    anyone else (not ``owners``), exactly (JSON with every float's repr), in (topic, seq)
-    order."""
+    anyone else (not ``owners``), exactly (JSON with every float's repr) but for the boot each
+    process draws, in (topic, seq) order."""
     return sorted(
-        json.dumps([r.topic, r.data["seq"], r.data], sort_keys=True)
+        json.dumps([r.topic, r.data["seq"], {**r.data, "boot": None}], sort_keys=True)
         for r in records
         if r.topic.startswith(FLIGHT) and "src" in r.data
         and bool(may_publish(r.data["src"], r.topic)) == owners

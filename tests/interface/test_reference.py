@@ -20,7 +20,7 @@ def test_every_field_has_a_unit_column_and_a_description() -> None:
         for name, field in spec.fields.items():
             assert field.doc, f"{spec.name}.{name}"
             assert "\n" not in field.doc and "\n" not in field.unit
-    assert HEADER_KEYS == ("schema", "version", "seq", "t", "src", "body")
+    assert HEADER_KEYS == ("schema", "version", "seq", "t", "src", "boot", "body")
     assert all(h.doc for h in HEADER)
 
 

@@ -68,6 +68,7 @@ SAMPLES: dict[str, dict[str, Any]] = {
     },
     "stats": {"service": "nav-deputy1", "counters": {"sent": 10, "rejected.malformed": 1}},
     "log": {"service": "controller-deputy1", "level": "info", "text": "switched to ddvi gains"},
+    "recorded": {"messages": 1234},
 }
 
 
@@ -79,6 +80,7 @@ def raw(body: Any = None, **header: Any) -> bytes:
         "seq": 0,
         "t": 0.0,
         "src": "test",
+        "boot": 0,
         "body": {
             "sc": "d1",
             "x_hill": [0.0] * 6,
@@ -139,7 +141,7 @@ def _plain(value: Any) -> bool:
 def test_plain_msgpack_reads_every_message(name: str) -> None:
     payload = encode(name, SAMPLES[name], seq=1, t=2.0, src="svc")
     msg = msgpack.unpackb(payload)  # no options, no ext hook
-    assert set(msg) == {"schema", "version", "seq", "t", "src", "body"}
+    assert set(msg) == {"schema", "version", "seq", "t", "src", "boot", "body"}
     assert msg["schema"] == name
     assert _plain(msg)
 
@@ -332,6 +334,7 @@ def _messages(draw: st.DrawFn) -> bytes:
         "seq": 0,
         "t": 0.0,
         "src": "s",
+        "boot": 0,
         "body": body,
     }
     for key in draw(st.lists(st.sampled_from(sorted(msg)), max_size=2)):
@@ -435,11 +438,14 @@ def _edges() -> list[tuple[str, dict[str, Any]]]:
     for name in sorted(SCHEMAS):
         body = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in SAMPLES[name].items()}
         version = SCHEMAS[name].version
-        msg = {"schema": name, "version": version, "seq": 0, "t": 0.0, "src": "s", "body": body}
+        msg = {"schema": name, "version": version, "seq": 0, "t": 0.0, "src": "s", "boot": 7}
+        msg["body"] = body
         cases += [(name, msg), (name, {**msg, "extra": 1}), (name, {**msg, "version": version + 1})]
         cases += [(name, {k: v for k, v in msg.items() if k != "src"})]
-        for key, value in (("seq", -1), ("seq", 2.0), ("t", math.nan), ("t", -math.inf),
-                           ("t", 3), ("src", ""), ("src", 5)):  # fmt: skip
+        cases += [(name, {k: v for k, v in msg.items() if k != "boot"})]
+        bad_values = [("seq", -1), ("seq", 2.0), ("t", math.nan), ("t", -math.inf), ("t", 3)]
+        bad_values += [("src", ""), ("src", 5), ("boot", -1), ("boot", "b")]
+        for key, value in bad_values:
             cases.append((name, {**msg, key: value}))
         cases += [(name, {**msg, "schema": "clock" if name != "clock" else "exo"})]
         for key, field in SCHEMAS[name].fields.items():

@@ -10,6 +10,7 @@ import pytest
 from services.interface import (
     CLOCK,
     EXOSTATE,
+    RECORDED,
     SCHEMAS,
     SERVICES,
     TOPIC_SCHEMAS,
@@ -39,6 +40,7 @@ TOPIC_FUNCTIONS = {
     "fault": fault_topic,
     "stats": stats_topic,
     "log": log_topic,
+    "recorded": lambda name: RECORDED,
 }
 
 
@@ -132,8 +134,9 @@ def test_topics_subscribed_by_a_service() -> None:
         command_topic("*"),
         fault_topic("panel"),
         fault_topic("link"),
+        RECORDED,
     )
-    assert topics_subscribed_by("launcher") == (fault_topic("kill"),)
+    assert topics_subscribed_by("launcher") == (CLOCK, fault_topic("kill"))
     monitor = topics_subscribed_by("monitor")
     assert stats_topic("*") in monitor and log_topic("*") in monitor
     assert all(schema_for_topic(_example(k.replace("*", "x"))) for k in monitor)
