@@ -96,6 +96,8 @@ class CommandGate:
         deputies, counters = self.deputies, self.counters
         expected = {sc: self.expected_step(sc, t_k) for sc in deputies}
         waiting = Waiting(self.run.command_deadline, self.run.hang_timeout + HANG_MARGIN)
+        if wait and self.recorder.behind(t_k):
+            counters["recorder_waits"] += 1  # steps held back for the recorder
         while not self.ctx.stop.is_set():
             late = self.awaited(t_k, expected)
             if wait and late and waiting.said_at(time.monotonic()):

@@ -149,6 +149,7 @@ class EnvironmentService:
             "bad_commands": 0,
             "controller_away_steps": 0,
             "paused_steps": 0,
+            "recorder_waits": 0,
             "panel_faults": 0,
             "bad_faults": 0,
         }

@@ -40,7 +40,7 @@ from services.ground.netns import hub_address
 from services.ground.processes import ServiceProcesses
 from services.ground.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.supervisor import Supervisor
-from services.interface.topics import CLOCK, fault_topic
+from services.interface.topics import fault_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
@@ -188,9 +188,8 @@ class Launcher:
             self.say(f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
                      "WebSocket; docs/live.md)")  # fmt: skip
         with Bus(session, self.run, "launcher") as bus:
-            faults: queue.SimpleQueue = queue.SimpleQueue()  # kill faults and the clock
+            faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
-            bus.subscribe(CLOCK, queue_handler(faults), expected_schema="clock")
             for name in [*first, "environment"]:
                 self.services.start(name)
             if (status := self._await(session, first)) is not None:

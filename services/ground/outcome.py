@@ -15,7 +15,7 @@ which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.ve
                 publisher's rate budget (``services.bus.budget``): the publisher flooded
     health      {"safe_attitude_steps": {controller: n}, "paused_steps": n}: real-time steps a
                 controller flew the safe attitude (its navigation too old), lock-step steps
-                the mission paused for a silent controller (docs/health.md)
+                the mission paused for a silent controller or recorder (docs/health.md)
     refused     the messages the ground refused to believe, by publisher, topic and reason
                 (``services.ground.refusals``): a topic its publisher may not send, or a body
                 naming another deputy or service than its topic
@@ -24,6 +24,9 @@ which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.ve
     clipped_commands  {"total": n, "by_deputy": {deputy: n}}: commands the environment clipped
                 to the deputy's attitude limit (``deputy.attitude_limit``)
     record      whether the record of the run is whole (``services.ground.record``)
+    refused_by_number  {reason: n}: messages the ground recorded but kept out of the report
+                by their sequence number (``services.bus.SequenceGuard``: a duplicate, a stale
+                replay, a jump past any number its publisher reached): refused, never lost
 """
 
 from __future__ import annotations
@@ -90,6 +93,11 @@ def outcome(
         "impossible": [dict(c) for c in impossible],
         "clipped_commands": clipped(env, deputies),
         "record": dict(record) if record is not None else {"complete": True},
+        "refused_by_number": {
+            key.removeprefix("ignored."): int(n)
+            for key, n in monitor.items()
+            if key.startswith("ignored.") and int(n or 0)
+        },
     }
 
 
@@ -150,12 +158,17 @@ def outcome_lines(out: Mapping[str, Any]) -> list[str]:
         lines.append(f"- **safe attitude flown** (navigation too old): {said} steps")
     if health.get("paused_steps"):
         lines.append(f"- lock-step paused {health['paused_steps']} times for a silent "
-                     "controller (run.command_deadline); the mission waited for it")  # fmt: skip
+                     "controller or recorder (run.command_deadline); the mission waited for "
+                     "it")  # fmt: skip
     if out.get("refused_clocks"):
         lines.append(
             f"- **{out['refused_clocks']} clock messages refused**: not from the environment "
             "(recorded, never obeyed)"
         )
+    if by_number := out.get("refused_by_number"):
+        said = ", ".join(f"{n} {why}" for why, n in sorted(by_number.items()))
+        said += " (recorded, never taken for lost)"
+        lines.append(f"- messages the ground refused by their sequence number: {said}")
     if (cut := out.get("clipped_commands")) is not None:
         lines.append(clipped_line(cut))
     if impossible := out.get("impossible"):

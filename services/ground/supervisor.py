@@ -10,16 +10,22 @@ restarts.<service>, kills)."""
 
 from __future__ import annotations
 
+import logging
 import queue
 import time
 from collections.abc import Callable
+
+import zenoh
 
 from services.bus import Bus
 from services.config import Deployment, DeploymentError, check_kill
 from services.flight.health import HANG_MARGIN, HANG_STATUS
 from services.ground import lifecycle
 from services.ground.processes import ServiceProcesses
+from services.interface import MessageError, decode, unpack_batch
 from services.interface.topics import CLOCK, log_topic, stats_topic
+
+log = logging.getLogger("ddvi.launcher")
 
 POLL = 0.2
 """Wall seconds between two looks at the services and the fault queue."""
@@ -30,6 +36,39 @@ for."""
 SELF_FROZEN = 2.0
 """Wall seconds between two looks that say this process was itself stopped: a silence it slept
 through says nothing of the others."""
+
+
+class ClockWatch:
+    """When the environment's clock was last heard.  Zenoh's callback only stamps it: a clock a
+    step is the busiest key, and only the environment may put it (the router's access
+    control), so nothing is decoded until a silence is to be said."""
+
+    def __init__(self) -> None:
+        self.heard: float | None = None  # monotonic s of the newest clock (None: none yet)
+        self.payload: bytes = b""
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            self.payload, self.heard = sample.payload.to_bytes(), time.monotonic()
+        except Exception:  # a zenoh callback must never raise
+            log.exception("launcher: could not take a clock")
+
+    def forgive(self, now: float) -> None:
+        """The watcher itself was stopped: count the silence from ``now``."""
+        if self.heard is not None:
+            self.heard = now
+
+    def silence(self, now: float) -> float:
+        """Seconds since the newest clock (0 before the first)."""
+        return 0.0 if self.heard is None else now - self.heard
+
+    def t(self) -> float:
+        """The simulation time of the newest clock (0 when it does not decode)."""
+        try:
+            parts = unpack_batch(self.payload) or [self.payload]
+            return max(decode(part, "clock").t for part in parts)
+        except (MessageError, ValueError):
+            return 0.0
 
 
 class Supervisor:
@@ -54,33 +93,35 @@ class Supervisor:
         paced = run.nav_period / run.rate if run.mode == "realtime" else 0.0
         self.clock_silence = run.hang_timeout + CLOCK_MARGIN + paced
 
-    def watch(self, bus: Bus, inbox: queue.SimpleQueue) -> int | None:
+    def watch(self, bus: Bus, faults: queue.SimpleQueue) -> int | None:
         """Until the environment ends: None when it completed the mission, else the run's
-        exit status (a stop signal, a hung or failed service, an environment that failed).
-        ``inbox`` holds ``(topic, message)`` of the kill faults and the clock."""
+        exit status (a stop signal, a hung or failed service, an environment that failed)."""
         env = self.services["environment"].popen
         sim_t = 0.0
-        heard: float | None = None  # wall time of the newest clock (None: none yet)
-        looked = time.monotonic()
-        while env.poll() is None:
-            if self.stopping():
-                return lifecycle.EXIT_FAILED  # the launcher makes it 128 + N
-            now = time.monotonic()
-            if heard is not None and now - looked > SELF_FROZEN:
-                heard = now  # this process was stopped: the silence is its own
-            looked = now
-            while not inbox.empty():
-                topic, msg = inbox.get_nowait()
-                sim_t = max(sim_t, msg.t)
-                if topic == CLOCK:
-                    heard = now
-                elif msg.body["kind"] == "kill":
-                    self.kill(bus, msg.body["target"], msg.t)
-            if (status := self._look(bus, sim_t)) is not None:
-                return status
-            if heard is not None and now - heard > self.clock_silence and env.poll() is None:
-                return self.silent_environment(bus, sim_t, now - heard)
-            time.sleep(POLL)
+        clock = ClockWatch()
+        subscriber = bus.session.declare_subscriber(bus.prefix + CLOCK, clock.on_sample)
+        try:
+            looked = time.monotonic()
+            while env.poll() is None:
+                if self.stopping():
+                    return lifecycle.EXIT_FAILED  # the launcher makes it 128 + N
+                now = time.monotonic()
+                if now - looked > SELF_FROZEN:
+                    clock.forgive(now)  # this process was stopped: the silence is its own
+                looked = now
+                while not faults.empty():
+                    _, msg = faults.get_nowait()
+                    sim_t = max(sim_t, msg.t)
+                    if msg.body["kind"] == "kill":
+                        self.kill(bus, msg.body["target"], msg.t)
+                if (status := self._look(bus, sim_t)) is not None:
+                    return status
+                silence = clock.silence(now)
+                if silence > self.clock_silence and env.poll() is None:
+                    return self.silent_environment(bus, max(sim_t, clock.t()), silence)
+                time.sleep(POLL)
+        finally:
+            subscriber.undeclare()
         if env.returncode == HANG_STATUS:
             return self.hung("environment", bus, sim_t)
         if env.returncode != 0:

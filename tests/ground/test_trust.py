@@ -144,6 +144,8 @@ def test_two_forged_sequence_numbers_neither_stall_nor_change_the_mission(
     assert env["rejected.jump"] == 2, env  # both refused where they act, by that reason
     assert env["bad_commands"] == 1, env  # for a step not clocked: no controller sent it
     assert summary["messages"]["services"]["monitor"]["ignored.jump"] == 2
+    assert summary["outcome"]["refused_by_number"] == {"jump": 2}
+    assert "refused by their sequence number: 2 jump" in (out / "report.md").read_text()
     assert not summary["messages"]["unrecorded"]  # nothing genuine taken for lost
     commands = _summary(clean)["outcome"]["commands"]
     assert summary["outcome"]["commands"] == {**commands, "refused": 3}
