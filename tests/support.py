@@ -5,9 +5,15 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import IO
+
+import psutil
 
 TIMEOUT = 5.0
 """Seconds a test waits for something that happens within milliseconds when all is well."""
@@ -44,3 +50,51 @@ def read_until_flying(stderr: IO[bytes]) -> list[bytes]:
         if FLYING in line:
             break
     return said
+
+
+During = Callable[[subprocess.Popen, Path], None]
+"""What a test does to a flying run: ``during(launcher process, run folder)``."""
+
+
+def fly(dep: Path, root: Path, during: During | None = None) -> tuple[int, str, Path]:
+    """``ddvi run dep`` into ``root``; ``during(proc, run folder)`` once its services are alive
+    (the environment then flies).  Its status, stderr and run folder."""
+    cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output", str(root)]
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    said: list[bytes] = []
+    try:
+        if during is not None:
+            assert proc.stderr is not None
+            said = read_until_flying(proc.stderr)  # the rest is read by communicate()
+            (folder,) = [p.parent for p in root.glob("*/bus.json")]
+            during(proc, folder)
+        _, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    (out,) = [p.parent for p in root.glob("*/recording.mcap")]
+    return proc.returncode, b"".join([*said, err]).decode(), out
+
+
+def service_process(proc: subprocess.Popen, name: str) -> psutil.Process:
+    """The process of service ``name``, a child of the launcher ``proc``."""
+    kids = {" ".join(k.cmdline()): k for k in psutil.Process(proc.pid).children()}
+    found = [k for c, k in kids.items() if f"--name {name} " in c]
+    assert found, f"{name} is not running: {sorted(kids)}"
+    return found[0]
+
+
+def freeze(name: str, seconds: float, after: float = 1.0) -> During:
+    """Stop service ``name`` (``launcher``: the launcher's process, the run's router) with
+    SIGSTOP ``after`` s into the flight, for ``seconds``, then continue it."""
+
+    def during(proc: subprocess.Popen, _folder: Path) -> None:
+        part = psutil.Process(proc.pid) if name == "launcher" else service_process(proc, name)
+        time.sleep(after)
+        part.send_signal(signal.SIGSTOP)
+        time.sleep(seconds)
+        if part.is_running():
+            part.send_signal(signal.SIGCONT)
+
+    return during

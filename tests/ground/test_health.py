@@ -5,11 +5,6 @@ frozen past run.hang_timeout, the run ends with status 1 naming it."""
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import psutil
@@ -17,7 +12,7 @@ import pytest
 
 from benchmarks.flood import DEPLOYMENT, readable
 from services.ground.recording import read_recording
-from tests.support import read_until_flying
+from tests.support import fly, freeze
 
 pytestmark = pytest.mark.integration
 
@@ -33,38 +28,10 @@ def _deployment(tmp: Path, command_deadline: float, hang_timeout: float) -> Path
     return path
 
 
-def _fly(dep: Path, root: Path, freeze: float = 0.0) -> tuple[int, str, Path]:
-    """``ddvi run dep``; with ``freeze``, nav-lqr is stopped (SIGSTOP) a second after the
-    launcher says the services are alive (the environment then flies), for ``freeze`` s, then
-    continued.  Its status, stderr and run folder."""
-    cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output", str(root)]
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-    said: list[bytes] = []
-    try:
-        if freeze:
-            assert proc.stderr is not None
-            said = read_until_flying(proc.stderr)  # the rest is read by communicate()
-            nav = _service(proc, "nav-lqr")
-            time.sleep(1.0)
-            nav.send_signal(signal.SIGSTOP)
-            time.sleep(freeze)
-            if nav.is_running():
-                nav.send_signal(signal.SIGCONT)
-        _, err = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    (out,) = [p.parent for p in root.glob("*/recording.mcap")]
-    return proc.returncode, b"".join([*said, err]).decode(), out
-
-
-def _service(proc: subprocess.Popen, name: str) -> psutil.Process:
-    """The process of service ``name``."""
-    kids = {" ".join(k.cmdline()): k for k in psutil.Process(proc.pid).children()}
-    found = [k for c, k in kids.items() if f"--name {name} " in c]
-    assert found, f"{name} is not running: {sorted(kids)}"
-    return found[0]
+def _fly(dep: Path, root: Path, freeze_nav: float = 0.0) -> tuple[int, str, Path]:
+    """``ddvi run dep``; with ``freeze_nav``, nav-lqr is stopped (SIGSTOP) a second after the
+    launcher says the services are alive, for ``freeze_nav`` s, then continued."""
+    return fly(dep, root, freeze("nav-lqr", freeze_nav) if freeze_nav else None)
 
 
 def _deputies(out: Path) -> dict:
@@ -77,7 +44,7 @@ def test_a_frozen_navigation_pauses_the_mission_which_then_flies_as_without_it(
     dep = _deployment(tmp_path, command_deadline=1.0, hang_timeout=30.0)
     status, err, clean = _fly(dep, tmp_path / "clean")
     assert status == 0, err
-    status, err, frozen = _fly(dep, tmp_path / "frozen", freeze=5.0)
+    status, err, frozen = _fly(dep, tmp_path / "frozen", freeze_nav=5.0)
     assert status == 0, err  # no command missing, late or stale: every step waited
     assert _deputies(frozen) == _deputies(clean)
     summary = json.loads((frozen / "summary.json").read_text())
@@ -91,7 +58,7 @@ def test_a_navigation_frozen_past_the_hang_timeout_ends_the_run_naming_it(
     tmp_path: Path,
 ) -> None:
     dep = _deployment(tmp_path, command_deadline=1.0, hang_timeout=3.0)
-    status, err, out = _fly(dep, tmp_path / "hung", freeze=12.0)
+    status, err, out = _fly(dep, tmp_path / "hung", freeze_nav=12.0)
     assert status == 1, err
     assert "nav-lqr is hung" in err and "run.hang_timeout" in err, err
     assert (out / "report.md").is_file() and readable(out / "recording.mcap")
@@ -108,7 +75,7 @@ def test_real_time_flies_the_safe_attitude_on_stale_navigation_and_says_so(
     text = dep.read_text().replace('mode = "lockstep"', 'mode = "realtime"\nrate = 600.0', 1)
     text = text.replace(f"orbits = {ORBITS}", "orbits = 1.5", 1)
     dep.write_text(text)
-    status, err, out = _fly(dep, tmp_path / "rt", freeze=3.0)
+    status, err, out = _fly(dep, tmp_path / "rt", freeze_nav=3.0)
     assert status == 3, err
     assert "safe attitude flown by" in err and "ctrl-lqr (" in err
     summary = json.loads((out / "summary.json").read_text())

@@ -5,13 +5,8 @@ loses nothing, and a freeze past run.hang_timeout is blamed on the part that fro
 from __future__ import annotations
 
 import json
-import os
-import signal
 import subprocess
-import sys
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +18,7 @@ from benchmarks.flood import DEPLOYMENT, readable
 from services.bus import BusSettings, open_session
 from services.bus.security import credentials_path, load_credentials
 from services.interface import decode, encode
-from tests.support import read_until_flying
+from tests.support import fly, freeze
 
 pytestmark = pytest.mark.integration
 
@@ -41,29 +36,6 @@ def _deployment(tmp: Path, hang_timeout: float = 60.0) -> Path:
     return path
 
 
-def _fly(
-    dep: Path, root: Path, during: Callable[[subprocess.Popen, Path], None] | None = None
-) -> tuple[int, str, Path]:
-    """``ddvi run dep`` into ``root``; ``during(proc, run folder)`` once its services are alive.
-    Its status, stderr and run folder."""
-    cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output", str(root)]
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-    said: list[bytes] = []
-    try:
-        if during is not None:
-            assert proc.stderr is not None
-            said = read_until_flying(proc.stderr)  # the rest is read by communicate()
-            (folder,) = [p.parent for p in root.glob("*/bus.json")]
-            during(proc, folder)
-        _, err = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    (out,) = [p.parent for p in root.glob("*/recording.mcap")]
-    return proc.returncode, b"".join([*said, err]).decode(), out
-
-
 def _summary(out: Path) -> dict[str, Any]:
     return json.loads((out / "summary.json").read_text())
 
@@ -72,19 +44,11 @@ def _finals(out: Path) -> dict[str, float]:
     return {k: v["final_along_track_error_m"] for k, v in _summary(out)["deputies"].items()}
 
 
-def _service(proc: subprocess.Popen, name: str) -> psutil.Process:
-    """The process of service ``name`` (the launcher's child)."""
-    for kid in psutil.Process(proc.pid).children():
-        if f"--name {name} " in " ".join(kid.cmdline()):
-            return kid
-    raise AssertionError(f"{name} is not running")
-
-
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A clean run of the short mission, the figures the others are held to."""
     root = tmp_path_factory.mktemp("clean")
-    status, err, out = _fly(_deployment(root), root)
+    status, err, out = fly(_deployment(root), root)
     assert status == 0, err
     return out
 
@@ -136,7 +100,7 @@ def _seq_attack(proc: subprocess.Popen, folder: Path) -> None:
 def test_two_forged_sequence_numbers_neither_stall_nor_change_the_mission(
     clean: Path, tmp_path: Path
 ) -> None:
-    status, err, out = _fly(_deployment(tmp_path), tmp_path, during=_seq_attack)
+    status, err, out = fly(_deployment(tmp_path), tmp_path, during=_seq_attack)
     assert status in (0, 3), err
     assert _finals(out) == _finals(clean)
     summary = _summary(out)
@@ -153,27 +117,10 @@ def test_two_forged_sequence_numbers_neither_stall_nor_change_the_mission(
     assert rows.read_text() == clean_rows.read_text()  # the command in force, every sample
 
 
-def _freeze(
-    name: str, seconds: float, after: float = 1.0
-) -> Callable[[subprocess.Popen, Path], None]:
-    """Stop service ``name`` (``launcher``: the launcher's process, the run's router) with
-    SIGSTOP ``after`` s into the flight, for ``seconds``, then continue it."""
-
-    def during(proc: subprocess.Popen, _folder: Path) -> None:
-        part = psutil.Process(proc.pid) if name == "launcher" else _service(proc, name)
-        time.sleep(after)
-        part.send_signal(signal.SIGSTOP)
-        time.sleep(seconds)
-        if part.is_running():
-            part.send_signal(signal.SIGCONT)
-
-    return during
-
-
 def test_a_monitor_frozen_for_20_s_loses_nothing(clean: Path, tmp_path: Path) -> None:
     """Lock-step runs at most its lead past what the monitor has recorded: frozen, the monitor
     pauses the mission, and once it goes on the record and every figure are a clean run's."""
-    status, err, out = _fly(_deployment(tmp_path), tmp_path, during=_freeze("monitor", 20.0))
+    status, err, out = fly(_deployment(tmp_path), tmp_path, during=freeze("monitor", 20.0))
     assert status == 0, err
     summary, reference = _summary(out), _summary(clean)
     paused = summary["outcome"]["health"]["paused_steps"]
@@ -206,7 +153,7 @@ def test_a_freeze_past_the_hang_timeout_is_blamed_on_what_froze(
     """Frozen past run.hang_timeout, the time master, the router or the recorder is named in
     the run's last word, not a service that was only waiting for it."""
     dep = _deployment(tmp_path, hang_timeout=5.0)
-    status, err, out = _fly(dep, tmp_path, during=_freeze(part, 22.0))
+    status, err, out = fly(dep, tmp_path, during=freeze(part, 22.0))
     assert status == 1, err
     assert named in err, err
     hung = [line for line in err.splitlines() if " is hung" in line]
