@@ -39,7 +39,11 @@ from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from typing import Any
 
+from services.interface.topics import CLOCK, RECORDED
+
 CLOCKS = ("sim", "wall")
+UNIMPAIRED = (CLOCK, RECORDED)
+"""Topics no link rule applies to (``LinkRule.matches``)."""
 LINK_PARAMETERS = ("delay", "jitter", "loss", "duplicate", "reorder")
 """The fields of ``LinkSpec``, in order."""
 
@@ -77,8 +81,9 @@ class LinkSpec:
 class LinkRule:
     """Which messages a LinkSpec applies to, at one subscriber: those whose publishing service
     (the header's ``src``) matches ``publisher`` and whose topic (below ``ddvi/<run>/``) matches
-    ``topic``, both shell-style globs.  The clock is never impaired: it is the emulator's time
-    base, not a flight message."""
+    ``topic``, both shell-style globs.  The clock and the recorder's acknowledgements are never
+    impaired: the emulator's time base and the ground's word on its recording, not flight
+    messages (a lock-step wait on an acknowledgement a link held would never end)."""
 
     publisher: str
     topic: str
@@ -86,7 +91,7 @@ class LinkRule:
 
     def matches(self, publisher: str, topic: str) -> bool:
         return (
-            topic != "clock"
+            topic not in UNIMPAIRED
             and fnmatchcase(publisher, self.publisher)
             and fnmatchcase(topic, self.topic)
         )

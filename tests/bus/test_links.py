@@ -146,16 +146,19 @@ def test_latency_runs_from_the_send_time() -> None:
     assert model.release(120.0) == ["cmd@60"]
 
 
-def test_rules_match_publisher_and_topic_but_never_the_clock() -> None:
+def test_rules_match_publisher_and_topic_but_never_the_clock_nor_the_recorder() -> None:
     rules = [
         LinkRule("nav-*", "nav/*/state", LinkSpec(delay=10.0)),
         LinkRule("environment", "*", LinkSpec(loss=0.1)),
+        LinkRule("monitor", "*", LinkSpec(delay=1e5)),
     ]
     assert select_rule(rules, "nav-lqr", "nav/lqr/state") == 0
     assert select_rule(rules, "nav-lqr", "stats/nav-lqr") is None
     assert select_rule(rules, "environment", "truth/chief") == 1
     assert select_rule(rules, "environment", "clock") is None  # the time base
     assert select_rule(rules, "ctrl-lqr", "cmd/lqr/att") is None
+    assert select_rule(rules, "monitor", "log/monitor") == 2
+    assert select_rule(rules, "monitor", "recorded") is None  # lock-step waits on it
 
 
 def test_jitter_counts_in_the_latency_a_loop_waits_for() -> None:
