@@ -112,8 +112,11 @@ class Monitor:
         self.ctx = ctx
         self.prefix = f"ddvi/{ctx.run}/"
         self.alive_prefix = self.prefix + topics.alive_topic("")
-        budget = ctx.bus.budget  # a service's stats may count what it dropped (claims)
-        self.data = RunData(ctx.deployment, ctx.run, budget.dropped_from if budget else None)
+        # what the rate budget dropped from a publisher: its sequence numbers ran on by that
+        # much, and its stats may count it (claims)
+        budget = ctx.bus.budget
+        self.dropped_from = budget.dropped_from if budget is not None else lambda _src: 0
+        self.data = RunData(ctx.deployment, ctx.run, self.dropped_from)
         self.counters: dict[str, int] = dict.fromkeys(
             ("received", "recorded", "rejected", "handler_errors"), 0
         )
@@ -212,9 +215,7 @@ class Monitor:
             self.counters["refused.origin"] += 1
             self.counters["recorded"] = rec.messages
             return
-        budget = self.ctx.bus.budget
-        missed = budget.dropped_from(msg.src) if budget is not None else 0
-        if (why := self.guards.check(msg, topic, missed)) is not None:
+        if (why := self.guards.check(msg, topic, self.dropped_from(msg.src))) is not None:
             n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
             if n <= 10 or n % 1000 == 0:
                 log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)
@@ -397,12 +398,8 @@ def _final_stats(ctx: ServiceContext, mon: Monitor, inbox: Inbox) -> None:
 def _report(ctx: ServiceContext, mon: Monitor, completed: bool) -> int:
     """Write the run report; 0 when it has figures (or names those its disk had no room for),
     else 1 (also when it could not be written, said in one line)."""
-    rec = mon.recorder
-    gaps = RecordGaps(
-        rec.stopped if rec else None,
-        rec.not_recorded if rec else 0,
-        mon.counters.get("unrecorded", 0),  # still queued when the recording closed
-    )
+    queued = mon.counters.get("unrecorded", 0)  # still queued when the recording closed
+    gaps = mon.recorder.gaps(queued) if mon.recorder else RecordGaps(queued_at_close=queued)
     try:
         summary = write_report(
             Path(ctx.out), mon.data, completed=completed, monitor_counters=mon.counters, gaps=gaps

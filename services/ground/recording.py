@@ -34,6 +34,7 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
 from services.ground.disk import REPORT_ROOM, RecordFile, size_text, space_left
+from services.ground.record import RecordGaps
 from services.interface import (
     REASONS,
     SCHEMAS,
@@ -351,6 +352,11 @@ class Recorder:
         """Record that ``service``'s liveliness token appeared (alive) or went away."""
         data = {"service": service, "alive": alive}
         self.write(topics.alive_topic(service), "ddvi.alive", ALIVE_SCHEMA, data, ns(t), recv_ns)
+
+    def gaps(self, queued_at_close: int = 0) -> RecordGaps:
+        """What the record lacks as far as the recorder knows (``queued_at_close``: samples
+        its caller still held when the recording closed)."""
+        return RecordGaps(self.stopped, self.not_recorded, queued_at_close)
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS (what a kill -9 cannot lose)."""
