@@ -6,6 +6,8 @@ names what its topic names, and only for a time inside the mission's window."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from services.interface import Message
 from services.interface.topics import identity_mismatch, may_publish
 
@@ -74,9 +76,14 @@ class SequenceGuard:
         self._mask = (1 << window) - 1
         self._beyond: tuple[int, int] | None = None  # (last, how many) consecutive jumps
 
+    def past_reach(self, seq: int, slack: int = 0) -> bool:
+        """Whether ``seq`` lies more than ``ahead + slack`` past the highest number seen."""
+        ahead = self.ahead
+        return ahead is not None and self.highest >= 0 and seq - self.highest > ahead + slack
+
     def check(self, seq: int, slack: int = 0) -> str | None:
         highest = self.highest
-        if highest >= 0 and self.ahead is not None and seq - highest > self.ahead + slack:
+        if self.past_reach(seq, slack):
             if not self._confirmed(seq):
                 return "jump"
             highest = self.highest = seq - 1  # the publisher is there: the window follows
@@ -113,15 +120,24 @@ class SequenceGuards:
         self.ahead = ahead
         self._boots: dict[tuple[str, str], dict[int, SequenceGuard]] = {}
 
-    def check(self, message: Message, topic: str, slack: int = 0) -> str | None:
-        """``SequenceGuard.check`` of the message's publisher, topic and boot."""
+    def check(
+        self, message: Message, topic: str, missed: Callable[[str], int] | None = None
+    ) -> str | None:
+        """``SequenceGuard.check`` of the message's publisher, topic and boot; ``missed``: what
+        the receiver knows it missed from a publisher (its slack), asked only of a number past
+        the window's reach."""
         boots = self._boots.get((message.src, topic))
         if boots is None:
             boots = self._boots[(message.src, topic)] = {}
-        guard = boots.pop(message.boot, None)  # re-inserted: the most recently heard is last
+        boot = message.boot
+        guard = boots.get(boot)
         if guard is None:
-            guard = SequenceGuard(ahead=self.ahead)
-            if len(boots) >= BOOTS_KEPT:
+            guard = boots[boot] = SequenceGuard(ahead=self.ahead)
+            if len(boots) > BOOTS_KEPT:
                 del boots[next(iter(boots))]
-        boots[message.boot] = guard
-        return guard.check(message.seq, slack)
+        elif len(boots) > 1:  # the most recently heard is last
+            boots[boot] = boots.pop(boot)
+        seq = message.seq
+        if missed is not None and guard.past_reach(seq):
+            return guard.check(seq, missed(message.src))
+        return guard.check(seq)

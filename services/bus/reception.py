@@ -200,9 +200,9 @@ class Route:
             return
         fresh: list[Message] = []  # what passes the wire's replay window: all that is handled
         try:
+            missed = rx.budget.dropped_from if rx.budget is not None else None
             with self.lock:
                 for message in messages:
-                    missed = rx.budget.dropped_from(message.src) if rx.budget else 0
                     if (why := self.wire.check(message, topic, missed)) is None:
                         fresh.append(message)
                     else:

@@ -149,7 +149,12 @@ class Claims:
         believed or not: a stats message, before its claim.  Counted for the run's services
         and their first ``MAX_SESSIONS`` boots each (a table no flood of invented names or
         boots grows); the rest together."""
-        key = (msg.src, msg.boot) if msg.src in self.known else (OTHERS, 0)
+        key = (msg.src, msg.boot)
+        if (n := self.received.get(key)) is not None:  # a known publisher's counted boot
+            self.received[key] = n + 1
+            return
+        if msg.src not in self.known:
+            key = (OTHERS, 0)
         if key not in self.received:
             boots = self._boots.get(key[0], 0)
             if boots >= MAX_SESSIONS:

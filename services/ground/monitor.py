@@ -215,7 +215,7 @@ class Monitor:
             self.counters["refused.origin"] += 1
             self.counters["recorded"] = rec.messages
             return
-        if (why := self.guards.check(msg, topic, self.dropped_from(msg.src))) is not None:
+        if (why := self.guards.check(msg, topic, self.dropped_from)) is not None:
             n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
             if n <= 10 or n % 1000 == 0:
                 log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)

@@ -204,6 +204,7 @@ class Recorder:
         self.stopped: RecordingStop | None = None
         self._saved, self._saved_ns = 0, 0  # messages in whole chunks, their latest log time
         self._pending, self._pending_ns = 0, 0  # messages in the chunk being built
+        self._room_seen = -1  # the file's size when its room was last checked
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
         self._file: RecordFile | None = None
@@ -313,7 +314,8 @@ class Recorder:
     ) -> None:
         """Write ``data`` as JSON on channel ``topic`` (registered with its schema on first
         use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns."""
-        if self.stopped is None:
+        file = self._file  # its room changes only as it is written
+        if self.stopped is None and file is not None and file.position != self._room_seen:
             self._keep_room()
         if self.stopped is not None:
             self.not_recorded += 1
@@ -325,7 +327,8 @@ class Recorder:
             cid = self._channel(topic, schema_name, schema)
             self.messages += 1
             self._pending += 1
-            self._pending_ns = max(self._pending_ns, log_ns)
+            if log_ns > self._pending_ns:
+                self._pending_ns = log_ns
             self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
         except OSError as exc:
             self._settle(chunks)
@@ -383,7 +386,10 @@ class Recorder:
 
     def _keep_room(self) -> None:
         """Close the file whole while its disk still has ``room()`` for it and the report."""
-        left = self._file.left if self._file is not None else None
+        if self._file is None:
+            return
+        self._room_seen = self._file.position
+        left = self._file.left
         if left is not None and left < self.room():
             self._close_full()
 

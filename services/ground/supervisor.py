@@ -39,19 +39,23 @@ through says nothing of the others."""
 
 
 class ClockWatch:
-    """When the environment's clock was last heard.  Zenoh's callback only stamps it: a clock a
-    step is the busiest key, and only the environment may put it (the router's access
-    control), so nothing is decoded until a silence is to be said."""
+    """When the environment's clock was last heard, looked at once a poll: zenoh keeps the
+    newest clock in a ring of one (a clock a step is the busiest key; no Python runs per
+    sample), and only the environment may put it (the router's access control), so nothing is
+    decoded until a silence is to be said."""
 
-    def __init__(self) -> None:
+    def __init__(self, bus: Bus) -> None:
         self.heard: float | None = None  # monotonic s of the newest clock (None: none yet)
         self.payload: bytes = b""
+        self._newest = bus.session.declare_subscriber(
+            bus.prefix + CLOCK, zenoh.handlers.RingChannel(1)
+        )
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            self.payload, self.heard = sample.payload.to_bytes(), time.monotonic()
-        except Exception:  # a zenoh callback must never raise
-            log.exception("launcher: could not take a clock")
+    def look(self, now: float) -> None:
+        """Take a clock that came since the last look as heard ``now``."""
+        sample = self._newest.try_recv()
+        if sample is not None:
+            self.payload, self.heard = sample.payload.to_bytes(), now
 
     def forgive(self, now: float) -> None:
         """The watcher itself was stopped: count the silence from ``now``."""
@@ -61,6 +65,9 @@ class ClockWatch:
     def silence(self, now: float) -> float:
         """Seconds since the newest clock (0 before the first)."""
         return 0.0 if self.heard is None else now - self.heard
+
+    def close(self) -> None:
+        self._newest.undeclare()
 
     def t(self) -> float:
         """The simulation time of the newest clock (0 when it does not decode)."""
@@ -98,8 +105,7 @@ class Supervisor:
         exit status (a stop signal, a hung or failed service, an environment that failed)."""
         env = self.services["environment"].popen
         sim_t = 0.0
-        clock = ClockWatch()
-        subscriber = bus.session.declare_subscriber(bus.prefix + CLOCK, clock.on_sample)
+        clock = ClockWatch(bus)
         try:
             looked = time.monotonic()
             while env.poll() is None:
@@ -116,12 +122,13 @@ class Supervisor:
                         self.kill(bus, msg.body["target"], msg.t)
                 if (status := self._look(bus, sim_t)) is not None:
                     return status
+                clock.look(now)
                 silence = clock.silence(now)
                 if silence > self.clock_silence and env.poll() is None:
                     return self.silent_environment(bus, max(sim_t, clock.t()), silence)
                 time.sleep(POLL)
         finally:
-            subscriber.undeclare()
+            clock.close()
         if env.returncode == HANG_STATUS:
             return self.hung("environment", bus, sim_t)
         if env.returncode != 0:
