@@ -70,12 +70,17 @@ def payloads(kind: str, run: str, batch: int, n: int = 4096) -> tuple[str, list[
     """The key and ``n`` ready payloads of one attack (each ``batch`` messages)."""
     if kind == "stats":
         key, user = f"ddvi/{run}/stats/nav-lqr", "nav-lqr"
-        make = lambda i: encode("stats", {"service": f"forged-{i}", "counters": {"x": i}},  # noqa: E731
-                                seq=i, t=60.0, src=user)  # fmt: skip
+
+        def make(i: int) -> bytes:
+            body = {"service": f"forged-{i}", "counters": {"x": i}}
+            return encode("stats", body, seq=i, t=60.0, src=user)
     else:
         key, user = f"ddvi/{run}/cmd/lqr/att", "ctrl-lqr"
-        body = {"sc": "lqr", "sigma": np.array([0.0, 0.0, 0.5]), "for_t": 60.0}
-        make = lambda i: encode("cmd", body, seq=10**6 + i, t=60.0, src=user)  # noqa: E731
+        command = {"sc": "lqr", "sigma": np.array([0.0, 0.0, 0.5]), "for_t": 60.0}
+
+        def make(i: int) -> bytes:
+            return encode("cmd", command, seq=10**6 + i, t=60.0, src=user)
+
     msgs = [make(i) for i in range(n * batch)]
     if batch == 1:
         return key, msgs
@@ -110,8 +115,9 @@ def _flood(out: Path, kind: str, batch: int, seconds: float, proc: subprocess.Po
     clock (or until the run ends)."""
     info = json.loads((out / "bus.json").read_text())
     cred = load_credentials(credentials_path(out, ATTACKS[kind]))
-    settings = BusSettings(mode="client", listen=[], connect=[info["hub"]], user=cred.user,
-                           password=cred.password)  # fmt: skip
+    settings = BusSettings(
+        mode="client", listen=[], connect=[info["hub"]], user=cred.user, password=cred.password
+    )
     key, ready = payloads(kind, info["run"], batch)
     started = threading.Event()
     sent = {"messages": 0.0, "puts": 0.0, "seconds": 0.0}
@@ -137,8 +143,7 @@ def _flood(out: Path, kind: str, batch: int, seconds: float, proc: subprocess.Po
             for _ in range(256):
                 publisher.put(ready[puts % n])
                 puts += 1
-        sent.update(messages=float(puts * batch), puts=float(puts),
-                    seconds=time.monotonic() - t0)  # fmt: skip
+        sent.update(messages=float(puts * batch), puts=float(puts), seconds=time.monotonic() - t0)
         publisher.undeclare()
         sub.undeclare()
     finally:
@@ -182,8 +187,9 @@ def run_attack(
             watcher.join()
     said = [x for x in (root / "ddvi.log").read_text().splitlines() if "mission" in x]
     summary = json.loads((out / "summary.json").read_text())
-    return Outcome(status, said[-1] if said else "", summary, peak[0],
-                   readable(out / "recording.mcap"), sent)  # fmt: skip
+    return Outcome(
+        status, said[-1] if said else "", summary, peak[0], readable(out / "recording.mcap"), sent
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -196,19 +202,23 @@ def main(argv: list[str] | None = None) -> int:
     root.mkdir(parents=True, exist_ok=True)
     dep = deployment(root, args.orbits)
     clean = run_attack(dep, root / "clean", None)
-    print(f"clean: status {clean.status}, monitor peak {clean.monitor_peak / 1e6:.0f} MB, "
-          f"readable {clean.readable}")  # fmt: skip
+    print(
+        f"clean: status {clean.status}, monitor peak {clean.monitor_peak / 1e6:.0f} MB, "
+        f"readable {clean.readable}"
+    )
     for kind, user in ATTACKS.items():
         for batch in (1, 64):
             o = run_attack(dep, root / f"{kind}-{batch}", kind, batch, args.seconds)
             rate = o.sent.get("messages", 0) / max(o.sent.get("seconds", 0), 1e-9)
             others = [sc for sc in clean.summary["deputies"] if f"-{sc}" not in user]
             same = all(o.summary["deputies"][sc] == clean.summary["deputies"][sc] for sc in others)
-            print(f"{user} on {kind}, batch {batch}: {rate:,.0f} messages/s for "
-                  f"{o.sent.get('seconds', 0):.1f} s; status {o.status} ({o.said}); monitor "
-                  f"peak {o.monitor_peak / 1e6:.0f} MB = {o.monitor_peak / clean.monitor_peak:.2f}"
-                  f" x clean; mcap readable {o.readable}; {', '.join(others)} identical {same}; "
-                  f"flooded {o.summary['outcome'].get('flooded')}")  # fmt: skip
+            print(
+                f"{user} on {kind}, batch {batch}: {rate:,.0f} messages/s for "
+                f"{o.sent.get('seconds', 0):.1f} s; status {o.status} ({o.said}); monitor "
+                f"peak {o.monitor_peak / 1e6:.0f} MB = {o.monitor_peak / clean.monitor_peak:.2f}"
+                f" x clean; mcap readable {o.readable}; {', '.join(others)} identical {same}; "
+                f"flooded {o.summary['outcome'].get('flooded')}"
+            )
     return 0
 
 

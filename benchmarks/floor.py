@@ -104,8 +104,14 @@ def _body(kind: str, sc: str, t: float, vector: Callable[[list[float]], Any]) ->
         return {"v": vector([1.0, 0.5, 0.5, 0.5, 0.5]), "phase": 0.0}  # exostate's (5,)
     if kind == "nav":
         cov = vector([[0.0] * 6] * 6)
-        return {"sc": sc, "x_hill": vector([1.0] * 6), "z_hill": vector([1.0] * 6), "cov": cov,
-                "altitude": 3e5, "valid": True}  # fmt: skip
+        return {
+            "sc": sc,
+            "x_hill": vector([1.0] * 6),
+            "z_hill": vector([1.0] * 6),
+            "cov": cov,
+            "altitude": 3e5,
+            "valid": True,
+        }
     if kind == "cmd":
         return {"sc": sc, "sigma": vector([0.0, 0.0, 0.1]), "for_t": t}
     return {"step": 0, "dt": 10.0, "fsw": True, "mode": "lockstep", "final": False}  # clock
@@ -184,9 +190,13 @@ class _Step:
 
 
 def _environment(
-    wire: _Plain | _ProjectBus, session: zenoh.Session, deputies: list[str], steps: int,
-    grid: _Step, spin: float,
-) -> dict[str, Any]:  # fmt: skip
+    wire: _Plain | _ProjectBus,
+    session: zenoh.Session,
+    deputies: list[str],
+    steps: int,
+    grid: _Step,
+    spin: float,
+) -> dict[str, Any]:
     inbox: queue.SimpleQueue[Arrival] = queue.SimpleQueue()
     wire.subscribe(command_topic("*"), "cmd", inbox.put)  # every deputy's
     stop = session.declare_publisher(_key(STOP), congestion_control=zenoh.CongestionControl.BLOCK)
@@ -217,9 +227,15 @@ def _environment(
 
 
 def _relay(
-    wire: _Plain | _ProjectBus, session: zenoh.Session, name: str, inputs: list[tuple[str, str]],
-    receiver: str, publish: Callable[[int], None], grid: _Step, spin: float,
-) -> dict[str, Any]:  # fmt: skip
+    wire: _Plain | _ProjectBus,
+    session: zenoh.Session,
+    name: str,
+    inputs: list[tuple[str, str]],
+    receiver: str,
+    publish: Callable[[int], None],
+    grid: _Step,
+    spin: float,
+) -> dict[str, Any]:
     """A navigation or controller process: once every input message of a step has come, spin
     and ``publish(step)``; clock messages are taken and ignored; end on the stop.  It declares
     itself alive once its ``receiver`` is (so that its first put reaches it), and the
@@ -337,9 +353,14 @@ def _role(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_floor(
-    deputies: list[str], steps: int, samples: int = 6, dt: float = 10.0,
-    spins: dict[str, float] | None = None, layer: str = "plain", topology: str = "peer",
-) -> dict[str, Any]:  # fmt: skip
+    deputies: list[str],
+    steps: int,
+    samples: int = 6,
+    dt: float = 10.0,
+    spins: dict[str, float] | None = None,
+    layer: str = "plain",
+    topology: str = "peer",
+) -> dict[str, Any]:
     """The floor for ``deputies`` over ``steps`` flight-software steps of ``samples`` samples
     ``dt`` s apart, the flight processes' messages on ``layer`` (``plain`` or ``bus``), the
     processes connected as ``topology`` says (``peer`` or ``routed``);
@@ -356,8 +377,15 @@ def run_floor(
         raise ValueError(f"run_floor: topology {topology!r} is not one of {TOPOLOGIES}")
     cpu0 = _cpu()
     with tempfile.TemporaryDirectory(prefix="ddvi-floor-") as folder:
-        floor = _run_floor(deputies, steps, samples, dt, spins or {}, layer,
-                           Path(folder) if topology == "routed" else None)  # fmt: skip
+        floor = _run_floor(
+            deputies,
+            steps,
+            samples,
+            dt,
+            spins or {},
+            layer,
+            Path(folder) if topology == "routed" else None,
+        )
     return {**floor, "cpu_s": _cpu() - cpu0}
 
 
@@ -366,22 +394,41 @@ def _cpu() -> float:
     for (the floor's processes)."""
     return sum(
         u.ru_utime + u.ru_stime
-        for u in (resource.getrusage(resource.RUSAGE_SELF),
-                  resource.getrusage(resource.RUSAGE_CHILDREN))
-    )  # fmt: skip
+        for u in (
+            resource.getrusage(resource.RUSAGE_SELF),
+            resource.getrusage(resource.RUSAGE_CHILDREN),
+        )
+    )
 
 
 def _run_floor(
-    deputies: list[str], steps: int, samples: int, dt: float, spins: dict[str, float],
-    layer: str, folder: Path | None,
-) -> dict[str, Any]:  # fmt: skip
+    deputies: list[str],
+    steps: int,
+    samples: int,
+    dt: float,
+    spins: dict[str, float],
+    layer: str,
+    folder: Path | None,
+) -> dict[str, Any]:
     """``run_floor``; ``folder``: the routed topology's credentials and recording (None:
     peers)."""
     hub = f"tcp/127.0.0.1:{free_port()}"
     env = {"ZENOH_RUNTIME": SERVICE_ZENOH_RUNTIME, **os.environ, "OPENBLAS_NUM_THREADS": "1"}
     names = ["monitor", *(f"{p}-{d}" for d in deputies for p in ("nav", "ctrl")), "environment"]
-    common = ["--hub", hub, "--layer", layer, "--deputies", *deputies, "--steps", str(steps),
-              "--samples", str(samples), "--dt", str(dt)]  # fmt: skip
+    common = [
+        "--hub",
+        hub,
+        "--layer",
+        layer,
+        "--deputies",
+        *deputies,
+        "--steps",
+        str(steps),
+        "--samples",
+        str(samples),
+        "--dt",
+        str(dt),
+    ]
     if folder is None:
         hub_settings = BusSettings(mode="peer", listen=[hub], connect=[])
     else:
@@ -449,8 +496,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--spin", type=float, default=0.0, help="(internal) s of work a step")
     args = ap.parse_args(argv)
     if args.role is None:
-        floor = run_floor(args.deputies, args.steps, args.samples, args.dt, layer=args.layer,
-                          topology=args.topology)  # fmt: skip
+        floor = run_floor(
+            args.deputies,
+            args.steps,
+            args.samples,
+            args.dt,
+            layer=args.layer,
+            topology=args.topology,
+        )
         print(json.dumps(floor))
     else:
         print(json.dumps(_role(args)), flush=True)

@@ -100,8 +100,15 @@ class FloorRecorder:
                 messages = []  # the stop: nothing to record
             for m in messages:
                 schema = m["schema"]
-                self.recorder.write(topic, f"ddvi.{schema}", _recorded_schema(schema), m,
-                                    recv_ns, ns(m["t"]), m["seq"])  # fmt: skip
+                self.recorder.write(
+                    topic,
+                    f"ddvi.{schema}",
+                    _recorded_schema(schema),
+                    m,
+                    recv_ns,
+                    ns(m["t"]),
+                    m["seq"],
+                )
         else:
             try:
                 parts = unpack_batch(payload) or (payload,)

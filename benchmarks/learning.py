@@ -19,7 +19,8 @@ from pathlib import Path
 from ddvi_core.learning import LearningError
 from ddvi_core.lqr import NotStabilisingError
 from ddvi_core.solve import METHODS, reference_errors, solve
-from ddvi_core.systems import BUILTIN_SYSTEMS, System, load_system
+from ddvi_core.systems import BUILTIN_SYSTEMS, System
+from services.config.files import load_system
 
 # the gain error the benchmark reports the learner's time and iterations to reach:
 # |K - K*|/|K*| below this
@@ -59,8 +60,9 @@ def iterations_to(
     hi = upper
     t_hi, err_hi = ddvi_after(system, hi) if at_upper is None else at_upper
     if not err_hi < tolerance:
-        raise ValueError(f"|dK|/|K*| = {err_hi:.2e} after {upper} iterations: not below "
-                         f"{tolerance:g}")  # fmt: skip
+        raise ValueError(
+            f"|dK|/|K*| = {err_hi:.2e} after {upper} iterations: not below {tolerance:g}"
+        )
     lo = 0
     while hi - lo > resolution:
         mid = (lo + hi) // 2
@@ -152,13 +154,19 @@ def collector_row(system: System) -> dict:
     pr, cfg = system.problem, system.learning
     samples = list(
         simulate_zoh(
-            pr.A, pr.B, pr.D, pr.E, np.zeros(pr.n), np.ones(pr.q),
+            pr.A,
+            pr.B,
+            pr.D,
+            pr.E,
+            np.zeros(pr.n),
+            np.ones(pr.q),
             K0=cfg.K0_matrix(pr),
             exploration=Exploration(cfg.exploration_amplitude, (1e-3, 3e-3), 0),
             sample_period=cfg.sample_period,
-            command_period=cfg.command_period, duration=cfg.interval * 20,
+            command_period=cfg.command_period,
+            duration=cfg.interval * 20,
         )
-    )  # fmt: skip
+    )
 
     def collect() -> None:
         c = IntervalCollector(pr.n, pr.m, pr.q, cfg.interval)

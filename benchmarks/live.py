@@ -120,10 +120,17 @@ def bench_live(quick: bool = False) -> list[dict[str, Any]]:
         rows += _rows(table["run"]["orbits"], live, runs[live], runs[None])
     everything = [r for rs in runs.values() for r in rs]
     same = all(r["errors"] == runs[None][0]["errors"] for r in everything)
-    rows.append(_row(f"final along-track errors identical with and without: {same}", "m",
-                     runs[EVERY][-1]["errors"].get("ddvi", float("nan")),
-                     runs[None][0]["errors"].get("ddvi", float("nan")), "without --live",
-                     1.0, bench="live"))  # fmt: skip
+    rows.append(
+        _row(
+            f"final along-track errors identical with and without: {same}",
+            "m",
+            runs[EVERY][-1]["errors"].get("ddvi", float("nan")),
+            runs[None][0]["errors"].get("ddvi", float("nan")),
+            "without --live",
+            1.0,
+            bench="live",
+        )
+    )
     return rows
 
 
@@ -131,8 +138,11 @@ def _rows(
     orbits: float, what: str, live: list[dict[str, Any]], without: list[dict[str, Any]]
 ) -> list[dict[str, Any]]:
     rows = []
-    for key, figure in (("wall_s", "whole run"), ("loop_s", "lock-step loop"),
-                        ("run_cpu_s", "CPU of the run's processes")):  # fmt: skip
+    for key, figure in (
+        ("wall_s", "whole run"),
+        ("loop_s", "lock-step loop"),
+        ("run_cpu_s", "CPU of the run's processes"),
+    ):
         project = statistics.mean(r[key] for r in live)
         baseline = statistics.mean(r[key] for r in without)
         each = (
@@ -140,18 +150,43 @@ def _rows(
             + " against "
             + ", ".join(f"{r[key]:.1f}" for r in without)
         )
-        rows.append(_row(f"{orbits:g}-orbit mission, {figure}, --live, a client of {what} "
-                         f"(runs: {each})", "s", project, baseline, "without --live",
-                         project / baseline, TARGET, bench="live"))  # fmt: skip
+        rows.append(
+            _row(
+                f"{orbits:g}-orbit mission, {figure}, --live, a client of {what} (runs: {each})",
+                "s",
+                project,
+                baseline,
+                "without --live",
+                project / baseline,
+                TARGET,
+                bench="live",
+            )
+        )
     client_cpu = statistics.mean(r["client_cpu_s"] for r in live)
     run_cpu = statistics.mean(r["run_cpu_s"] for r in without)
-    rows.append(_row(f"CPU of the client of {what} (this process)", "s", client_cpu, run_cpu,
-                     "the run's CPU without --live", client_cpu / run_cpu,
-                     bench="live"))  # fmt: skip
+    rows.append(
+        _row(
+            f"CPU of the client of {what} (this process)",
+            "s",
+            client_cpu,
+            run_cpu,
+            "the run's CPU without --live",
+            client_cpu / run_cpu,
+            bench="live",
+        )
+    )
     last = live[-1]
-    rows.append(_row(f"messages the client of {what} received", "count", last["received"],
-                     last["recorded"], "messages recorded", last["received"] / last["recorded"],
-                     bench="live"))  # fmt: skip
+    rows.append(
+        _row(
+            f"messages the client of {what} received",
+            "count",
+            last["received"],
+            last["recorded"],
+            "messages recorded",
+            last["received"] / last["recorded"],
+            bench="live",
+        )
+    )
     return rows
 
 
@@ -165,8 +200,10 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(rows))
     else:
         for r in rows:
-            print(f"{r['metric']}: {r['project']:.4g} {r['unit']} against {r['baseline']:.4g} "
-                  f"({r['baseline_name']}), ratio {r['cost_ratio']:.3f} {r['target']}")  # fmt: skip
+            print(
+                f"{r['metric']}: {r['project']:.4g} {r['unit']} against {r['baseline']:.4g} "
+                f"({r['baseline_name']}), ratio {r['cost_ratio']:.3f} {r['target']}"
+            )
     return 0
 
 

@@ -167,8 +167,12 @@ def run_single(path: Path) -> dict[str, Any]:
     peak = memory.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"in-process run of {path} failed: {err[-2000:]}")
-    return {"wall_s": wall, "cpu_s": cpu, "pss_bytes": peak,
-            **json.loads(out.strip().splitlines()[-1])}  # fmt: skip
+    return {
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "pss_bytes": peak,
+        **json.loads(out.strip().splitlines()[-1]),
+    }
 
 
 def run_single_loop(path: str) -> dict[str, Any]:
@@ -270,9 +274,12 @@ def _whole_run_rows(
 
 
 def _loop_rows(
-    loop: float, single_loop: float, floors: dict[tuple[str, str], dict[str, Any]],
-    timing: dict[str, float], steps: int,
-) -> list[dict[str, Any]]:  # fmt: skip
+    loop: float,
+    single_loop: float,
+    floors: dict[tuple[str, str], dict[str, Any]],
+    timing: dict[str, float],
+    steps: int,
+) -> list[dict[str, Any]]:
     """The lock-step loop alone (s), distributed (``loop``) against one process
     (``single_loop``), and split by the floors (by layer and topology) into the topology's,
     the bus layer's and the services' own cost; ``timing``: each service's work (s) over
@@ -280,29 +287,80 @@ def _loop_rows(
     base = "one process, no bus: loop"
     shares = ", ".join(f"{name} {1e3 * spent / steps:.2f}" for name, spent in timing.items())
     work = sum(timing.values())
-    plain, routed, bus = (floors[k]["loop_s"] for k in (("plain", "peer"), ("plain", "routed"),
-                                                        ("bus", "peer")))  # fmt: skip
+    plain, routed, bus = (
+        floors[k]["loop_s"] for k in (("plain", "peer"), ("plain", "routed"), ("bus", "peer"))
+    )
     cpu = {k: f["cpu_s"] for k, f in floors.items()}
     return [
-        _row(f"loop only: first to last clock ({steps:,} lock-step steps)", "s", loop,
-             single_loop, base, loop / single_loop),
-        _row(f"one process's work, ms a step: {shares}", "ms", 1e3 * work / steps,
-             1e3 * single_loop / steps, base, work / single_loop),
-        _row("floor: plain zenoh peers, same processes, messages and work", "s", plain,
-             single_loop, base, plain / single_loop),
-        _row("floor, mission's topology: authenticated clients of one router, access "
-             "control, every message recorded to MCAP", "s", routed, plain,
-             "floor: plain zenoh peers", routed / plain, "<= 1.3x"),
-        _row("floor on the mission's topology, CPU of all its processes and its router", "s",
-             cpu["plain", "routed"], cpu["plain", "peer"], "floor: plain zenoh peers",
-             cpu["plain", "routed"] / cpu["plain", "peer"]),
-        _row("floor on the project's Bus (peers)", "s", bus, plain, "floor: plain zenoh peers",
-             bus / plain),
-        _row("loop only, against the floor on the mission's topology", "s", loop, routed,
-             "floor, mission's topology", loop / routed, "<= 1.3x"),
-        _row("loop only, against the plain floor", "s", loop, plain, "floor: plain zenoh peers",
-             loop / plain, "<= 1.7x"),
-    ]  # fmt: skip
+        _row(
+            f"loop only: first to last clock ({steps:,} lock-step steps)",
+            "s",
+            loop,
+            single_loop,
+            base,
+            loop / single_loop,
+        ),
+        _row(
+            f"one process's work, ms a step: {shares}",
+            "ms",
+            1e3 * work / steps,
+            1e3 * single_loop / steps,
+            base,
+            work / single_loop,
+        ),
+        _row(
+            "floor: plain zenoh peers, same processes, messages and work",
+            "s",
+            plain,
+            single_loop,
+            base,
+            plain / single_loop,
+        ),
+        _row(
+            "floor, mission's topology: authenticated clients of one router, access "
+            "control, every message recorded to MCAP",
+            "s",
+            routed,
+            plain,
+            "floor: plain zenoh peers",
+            routed / plain,
+            "<= 1.3x",
+        ),
+        _row(
+            "floor on the mission's topology, CPU of all its processes and its router",
+            "s",
+            cpu["plain", "routed"],
+            cpu["plain", "peer"],
+            "floor: plain zenoh peers",
+            cpu["plain", "routed"] / cpu["plain", "peer"],
+        ),
+        _row(
+            "floor on the project's Bus (peers)",
+            "s",
+            bus,
+            plain,
+            "floor: plain zenoh peers",
+            bus / plain,
+        ),
+        _row(
+            "loop only, against the floor on the mission's topology",
+            "s",
+            loop,
+            routed,
+            "floor, mission's topology",
+            loop / routed,
+            "<= 1.3x",
+        ),
+        _row(
+            "loop only, against the plain floor",
+            "s",
+            loop,
+            plain,
+            "floor: plain zenoh peers",
+            loop / plain,
+            "<= 1.7x",
+        ),
+    ]
 
 
 def swarm_table(n: int, orbits: float, controller: str = "lqr") -> dict[str, Any]:
@@ -362,24 +420,54 @@ def _swarm_rows(
     rate, one_rate = _message_rate(dist), _message_rate(one)
     pss, one_pss = dist["pss_bytes"] / 1e6, one["pss_bytes"] / 1e6
 
-    def row(metric: str, unit: str, project: float, base: float, base_name: str,
-            target: str = "") -> dict[str, Any]:  # fmt: skip
-        return _row(f"{name}: {metric}", unit, project, base, base_name, project / base,
-                    target, bench="swarm")  # fmt: skip
+    def row(
+        metric: str, unit: str, project: float, base: float, base_name: str, target: str = ""
+    ) -> dict[str, Any]:
+        return _row(
+            f"{name}: {metric}",
+            unit,
+            project,
+            base,
+            base_name,
+            project / base,
+            target,
+            bench="swarm",
+        )
 
     return [
         row("loop per orbit", "s", per_orbit, one_orbit, "1 lqr deputy", f"~{n}x if linear"),
-        row("loop per orbit, against one process", "s", per_orbit, single_orbit,
-            "the same swarm, one process"),
-        row("loop per deputy-orbit", "s", per_orbit / n, four["loop_s"] / orbits / 4,
-            "4 lqr deputies", "<= 1.2x" if n == 32 else ""),
+        row(
+            "loop per orbit, against one process",
+            "s",
+            per_orbit,
+            single_orbit,
+            "the same swarm, one process",
+        ),
+        row(
+            "loop per deputy-orbit",
+            "s",
+            per_orbit / n,
+            four["loop_s"] / orbits / 4,
+            "4 lqr deputies",
+            "<= 1.2x" if n == 32 else "",
+        ),
         row("peak memory (PSS), all processes", "MB", pss, one_pss, "1 lqr deputy"),
-        row("peak memory (PSS) per deputy", "MB", pss / n, single["pss_bytes"] / 1e6 / n,
-            "the same swarm, one process"),
+        row(
+            "peak memory (PSS) per deputy",
+            "MB",
+            pss / n,
+            single["pss_bytes"] / 1e6 / n,
+            "the same swarm, one process",
+        ),
         row("messages recorded a second", "1/s", rate, one_rate, "1 lqr deputy"),
-        row("CPU of the whole run per deputy-orbit", "s", dist["cpu_s"] / orbits / n,
-            four["cpu_s"] / orbits / 4, "4 lqr deputies"),
-    ]  # fmt: skip
+        row(
+            "CPU of the whole run per deputy-orbit",
+            "s",
+            dist["cpu_s"] / orbits / n,
+            four["cpu_s"] / orbits / 4,
+            "4 lqr deputies",
+        ),
+    ]
 
 
 def _message_rate(dist: dict[str, Any]) -> float:
@@ -395,9 +483,16 @@ def bench_basilisk(quick: bool = False) -> list[dict[str, Any]]:
 
     if importlib.util.find_spec("Basilisk") is None:
         return [
-            _row("skipped: Basilisk is not installed (pip install -e '.[basilisk]')", "",
-                 float("nan"), float("nan"), "-", float("nan"), bench="basilisk")
-        ]  # fmt: skip
+            _row(
+                "skipped: Basilisk is not installed (pip install -e '.[basilisk]')",
+                "",
+                float("nan"),
+                float("nan"),
+                "-",
+                float("nan"),
+                bench="basilisk",
+            )
+        ]
     rows = []
     base = "built-in truth"
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:
@@ -412,13 +507,25 @@ def bench_basilisk(quick: bool = False) -> list[dict[str, Any]]:
             table["environment"]["backend"] = "basilisk"
             bsk = runner(write_deployment(table, Path(tmp), "basilisk"))
             rows += [
-                _row(f"{orbits:g}-orbit mission {how}, wall", "s", bsk["wall_s"],
-                     builtin["wall_s"], base, bsk["wall_s"] / builtin["wall_s"],
-                     bench="basilisk"),
-                _row(f"{orbits:g}-orbit mission {how}, peak memory (PSS)", "MB",
-                     bsk["pss_bytes"] / 1e6, builtin["pss_bytes"] / 1e6, base,
-                     bsk["pss_bytes"] / builtin["pss_bytes"], bench="basilisk"),
-            ]  # fmt: skip
+                _row(
+                    f"{orbits:g}-orbit mission {how}, wall",
+                    "s",
+                    bsk["wall_s"],
+                    builtin["wall_s"],
+                    base,
+                    bsk["wall_s"] / builtin["wall_s"],
+                    bench="basilisk",
+                ),
+                _row(
+                    f"{orbits:g}-orbit mission {how}, peak memory (PSS)",
+                    "MB",
+                    bsk["pss_bytes"] / 1e6,
+                    builtin["pss_bytes"] / 1e6,
+                    base,
+                    bsk["pss_bytes"] / builtin["pss_bytes"],
+                    bench="basilisk",
+                ),
+            ]
     return rows
 
 

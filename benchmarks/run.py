@@ -115,9 +115,18 @@ def run(args: argparse.Namespace) -> int:
         try:
             got = _load(BENCHMARKS[name])(args.quick)
         except Exception as exc:  # one failing benchmark must not hide the others
-            got = [{"benchmark": name, "metric": f"FAILED: {exc}", "unit": "", "project": math.nan,
-                    "baseline": math.nan, "baseline_name": "", "cost_ratio": math.nan,
-                    "target": ""}]  # fmt: skip
+            got = [
+                {
+                    "benchmark": name,
+                    "metric": f"FAILED: {exc}",
+                    "unit": "",
+                    "project": math.nan,
+                    "baseline": math.nan,
+                    "baseline_name": "",
+                    "cost_ratio": math.nan,
+                    "target": "",
+                }
+            ]
         for row in got:
             row["seconds"] = time.perf_counter() - t0
             row["verdict"] = verdict(row)
@@ -134,8 +143,17 @@ def print_table(rows: list[dict[str, Any]], quick: bool) -> None:
     """The rows as a table on stdout, every text shown literally (``'.[basilisk]'`` is not
     rich markup)."""
     table = Table(title=f"ddvi bench{' --quick' if quick else ''} ({os.cpu_count()} CPUs)")
-    for col in ("benchmark", "metric", "unit", "project", "baseline", "baseline is", "ratio",
-                "target", "verdict"):  # fmt: skip
+    for col in (
+        "benchmark",
+        "metric",
+        "unit",
+        "project",
+        "baseline",
+        "baseline is",
+        "ratio",
+        "target",
+        "verdict",
+    ):
         table.add_column(
             col, justify="right" if col in ("project", "baseline", "ratio") else "left"
         )
@@ -151,7 +169,7 @@ def print_table(rows: list[dict[str, Any]], quick: bool) -> None:
             r["target"],
             r.get("verdict") or "",
         )
-        table.add_row(*(escape(str(t)) for t in texts))  # fmt: skip
+        table.add_row(*(escape(str(t)) for t in texts))
     Console(width=200).print(table)
 
 

@@ -82,8 +82,9 @@ def profile_run(deployment: str | None) -> dict[str, object]:
     """Run ``ddvi run`` and account every service's CPU by thread."""
     launched_ns, t0 = time.time_ns(), time.perf_counter()
     cmd = [sys.executable, "-m", "services.cli", "run", "--quiet"]
-    proc = subprocess.Popen(cmd + ([deployment] if deployment else []), stdout=subprocess.PIPE,
-                            text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        cmd + ([deployment] if deployment else []), stdout=subprocess.PIPE, text=True
+    )
     root, seen = psutil.Process(proc.pid), {}
     while proc.poll() is None:
         _thread_cpu(root, seen)
@@ -120,8 +121,11 @@ def _print_split(split: dict[str, collections.Counter], steps: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.step_profile", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.step_profile",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("deployment", nargs="?", help="a deployment file (default: the mission's)")
     ap.add_argument("--py-spy", type=Path, help="split this raw py-spy profile instead")
     ap.add_argument("--rate", type=float, default=100.0, help="the profile's samples a second")
@@ -132,8 +136,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     run = profile_run(args.deployment)
     steps = run["steps"]
-    print(f"start-up {run['startup_s']:.2f} s; loop {run['loop_s']:.2f} s "
-          f"({1e3 * run['loop_s'] / steps:.2f} ms a step); wall {run['wall_s']:.2f} s")  # fmt: skip
+    print(
+        f"start-up {run['startup_s']:.2f} s; loop {run['loop_s']:.2f} s "
+        f"({1e3 * run['loop_s'] / steps:.2f} ms a step); wall {run['wall_s']:.2f} s"
+    )
     total = 0.0
     for name, threads in sorted(run["cpu_s"].items(), key=lambda kv: -sum(kv[1].values())):
         total += sum(threads.values())

@@ -39,6 +39,7 @@ import numpy as np
 
 from services.config import deployment_from_table, read_table, resolve
 from services.flight import learners
+from services.ground.scoring import AS_GOOD_AS_LQR
 from services.ground.sweep import inprocess_rows, noisy_table
 from services.model.mission import lqr_gains
 
@@ -96,14 +97,26 @@ def _draw(args: tuple[Path, float, int, bool]) -> tuple[float, float, float, flo
 
 
 def within(error: np.ndarray, lqr: np.ndarray) -> np.ndarray:
-    """Whether each final error is within max(2 x the LQR's of the same draw, 10 m)."""
-    return error <= np.maximum(2.0 * lqr, 10.0)
+    """Whether each final error is within max(2 x the LQR's of the same draw, 10 m)
+    (``AS_GOOD_AS_LQR``)."""
+    return np.array(
+        [
+            AS_GOOD_AS_LQR.met(completed=True, final_m=float(e), lqr_final_m=float(q))
+            for e, q in zip(error, lqr, strict=True)
+        ],
+        dtype=bool,
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--noise", type=float, nargs="+", default=[0.5, 1.0, 3.0],
-                        help="position noise, m (velocity noise 1e-3 of it, m/s)")  # fmt: skip
+    parser.add_argument(
+        "--noise",
+        type=float,
+        nargs="+",
+        default=[0.5, 1.0, 3.0],
+        help="position noise, m (velocity noise 1e-3 of it, m/s)",
+    )
     parser.add_argument("--draws", type=int, default=40, help="noise draws (seeds 1 to N)")
     parser.add_argument("--workers", type=int, default=2, help="processes")
     parser.add_argument(
@@ -112,9 +125,11 @@ def main() -> None:
     args = parser.parse_args()
     path = resolve(DEPLOYMENT)
     learner = "model-fit learner" if args.deployed else "perfect learner at orbit 6"
-    print("| noise (m) | draws | twin within max(2x LQR, 10 m) | LQR within max(2x twin, 10 m) "
-          f"| {learner} within max(2x LQR, 10 m) | {learner} learned by orbit {BY_ORBIT:g} "
-          "| LQR final p50 / p90 (m) |")  # fmt: skip
+    print(
+        "| noise (m) | draws | twin within max(2x LQR, 10 m) | LQR within max(2x twin, 10 m) "
+        f"| {learner} within max(2x LQR, 10 m) | {learner} learned by orbit {BY_ORBIT:g} "
+        "| LQR final p50 / p90 (m) |"
+    )
     print("|---|---|---|---|---|---|---|")
     with ProcessPoolExecutor(args.workers) as pool:
         for noise in args.noise:
@@ -122,11 +137,14 @@ def main() -> None:
             finals = np.array(list(pool.map(_draw, jobs)))
             lqr, twin, learner, learned_at = finals.T
             learned = int(np.sum(learned_at <= BY_ORBIT + 0.05))  # its attempt at 6.01
-            print(f"| {noise:g} | {args.draws} | {int(within(twin, lqr).sum())} "
-                  f"| {int(within(lqr, twin).sum())} | {int(within(learner, lqr).sum())} "
-                  f"| {learned} "
-                  f"| {np.median(lqr):.2f} / "
-                  f"{np.percentile(lqr, 90):.2f} |", flush=True)  # fmt: skip
+            print(
+                f"| {noise:g} | {args.draws} | {int(within(twin, lqr).sum())} "
+                f"| {int(within(lqr, twin).sum())} | {int(within(learner, lqr).sum())} "
+                f"| {learned} "
+                f"| {np.median(lqr):.2f} / "
+                f"{np.percentile(lqr, 90):.2f} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

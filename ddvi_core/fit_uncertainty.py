@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ddvi_core.lqr import NotStabilisingError, solve_lqr
+from ddvi_core.lqr import NotStabilisingError, relative_gain_error, solve_lqr
 from ddvi_core.model_fit import IntegralData, _column_scale, _design, _model, interval_pairs
 
 __all__ = ["cluster_sums", "clusters", "gain_standard_error"]
@@ -82,5 +82,5 @@ def gain_standard_error(
             Ki = solve_lqr(A, B, Q, R).K
         except NotStabilisingError:
             return math.inf
-        errors.append(np.linalg.norm(Ki - K) / np.linalg.norm(K))
+        errors.append(relative_gain_error(Ki, K))
     return float(np.sqrt(np.mean(np.square(errors))))

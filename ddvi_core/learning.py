@@ -475,17 +475,40 @@ def learn_from_data(
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
     K0_s = np.zeros((m, n)) if K0 is None else np.asarray(K0, dtype=float) * S[None, :]
     P_s, _, k, resets, converged, _, history, why = iterate(
-        method, RiccatiMap(maps[0], n, m), Q_s, R_s, P0_s, K0_s, steps or StepSequence(),
-        bounds or BoundSchedule(), tol, max_iterations, rule, memory,
-    )  # fmt: skip
+        method,
+        RiccatiMap(maps[0], n, m),
+        Q_s,
+        R_s,
+        P0_s,
+        K0_s,
+        steps or StepSequence(),
+        bounds or BoundSchedule(),
+        tol,
+        max_iterations,
+        rule,
+        memory,
+    )
     K_s, residual = regression_solution(maps[0], thetas[0], P_s, n, m)
     B_s, D_s, S_X = implied_matrices(maps, P_s, K_s, R_s, n, m, q)
     X, U = _regulator_in_si(X_list, S_X, B_s, D_s, S, Qbar, Rbar, m)
     K = sc.unscale_K(K_s)
     return DDVIResult(
-        K=K, L=U + K @ X, P=sc.unscale_P(P_s), X=X, U=U, iterations=k, resets=resets,
-        converged=converged, rank=rank, rank_needed=needed, condition=condition,
-        residual=residual, intervals=data.intervals, scaling=sc,
-        B_implied=B_s * S[:, None] * w0, D_implied=D_s * S[:, None] * w0, history=history,
+        K=K,
+        L=U + K @ X,
+        P=sc.unscale_P(P_s),
+        X=X,
+        U=U,
+        iterations=k,
+        resets=resets,
+        converged=converged,
+        rank=rank,
+        rank_needed=needed,
+        condition=condition,
+        residual=residual,
+        intervals=data.intervals,
+        scaling=sc,
+        B_implied=B_s * S[:, None] * w0,
+        D_implied=D_s * S[:, None] * w0,
+        history=history,
         message=_outcome(k, resets, converged, why),
-    )  # fmt: skip
+    )

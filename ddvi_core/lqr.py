@@ -4,13 +4,20 @@ x^T Q x + u^T R u."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["LQRResult", "NotStabilisingError", "policy_iteration", "solve_lqr"]
+__all__ = [
+    "LQRResult",
+    "NotStabilisingError",
+    "policy_iteration",
+    "relative_gain_error",
+    "solve_lqr",
+]
 
 
 class NotStabilisingError(ValueError):
@@ -36,6 +43,24 @@ def _closed_loop_check(A: NDArray, B: NDArray, K: NDArray, what: str) -> NDArray
             "(run `ddvi check` on the system)"
         )
     return eig
+
+
+def relative_gain_error(K: ArrayLike, K_ref: ArrayLike) -> float:
+    """|K - K_ref| / |K_ref| in Frobenius norms: how far a gain is from a reference gain.
+
+    K and K_ref (m,n) of one shape, finite.  A zero K_ref gives inf (0.0 when K is zero too):
+    no gain is relatively close to nothing.  Raises ValueError on shapes that differ or a
+    non-finite entry.
+    """
+    K, K_ref = np.asarray(K, dtype=float), np.asarray(K_ref, dtype=float)
+    if K.shape != K_ref.shape:
+        raise ValueError(f"relative_gain_error: K is {K.shape}, K_ref {K_ref.shape}")
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(K_ref))):
+        raise ValueError("relative_gain_error: a gain has a non-finite entry")
+    diff, ref = float(np.linalg.norm(K - K_ref)), float(np.linalg.norm(K_ref))
+    if ref == 0.0:
+        return 0.0 if diff == 0.0 else math.inf
+    return diff / ref
 
 
 def solve_lqr(A: ArrayLike, B: ArrayLike, Q: ArrayLike, R: ArrayLike) -> LQRResult:

@@ -109,8 +109,16 @@ def policy_iteration_loop(
                 "the gain does not stabilise the closed loop the data imply (its policy "
                 f"evaluation's P is not positive definite) at policy iteration {k}: {advice}"
             )
-            return P_prev if P_prev is not None else Q_s, K, k, 0, False, math.inf, \
-                np.array(history), why  # fmt: skip
+            return (
+                P_prev if P_prev is not None else Q_s,
+                K,
+                k,
+                0,
+                False,
+                math.inf,
+                np.array(history),
+                why,
+            )
         K = riccati_map(P)[1]
         if P_prev is not None:
             history.append(float(np.linalg.norm(P - P_prev)))
@@ -148,9 +156,17 @@ def _hybrid(
     K, vi_iterations, resets = K0_s, 0, 0
     if not _stabilises(images, Q_s, R_s, K0_s, closed_loop):
         P, K, vi_iterations, resets, near, _, _, why = value_iteration_loop(
-            riccati_map, Q_s, R_s, P0_s, steps, bounds, max(tol, HYBRID_SWITCH),
-            max_iterations, closed_loop=closed_loop, rule="relative",
-        )  # fmt: skip
+            riccati_map,
+            Q_s,
+            R_s,
+            P0_s,
+            steps,
+            bounds,
+            max(tol, HYBRID_SWITCH),
+            max_iterations,
+            closed_loop=closed_loop,
+            rule="relative",
+        )
         if not near:
             why = f"value iteration did not bring the gain near enough for policy iteration: {why}"
             return P, K, vi_iterations, resets, False, math.inf, np.zeros(0), why
@@ -189,9 +205,18 @@ def iterate(
 
     if method == "vi":
         return value_iteration_loop(
-            riccati_map, Q_s, R_s, P0_s, steps, bounds, tol, max_iterations,
-            closed_loop=closed_loop, rule=rule, memory=memory,
-        )  # fmt: skip
+            riccati_map,
+            Q_s,
+            R_s,
+            P0_s,
+            steps,
+            bounds,
+            tol,
+            max_iterations,
+            closed_loop=closed_loop,
+            rule=rule,
+            memory=memory,
+        )
     if method == "pi":
         return policy_iteration_loop(riccati_map, Q_s, R_s, K0_s, tol, max_iterations)
     if method == "hybrid":

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from ddvi_core.exploration import InterleavedExploration, periodic_start
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
-from ddvi_core.lqr import NotStabilisingError, policy_iteration, solve_lqr
+from ddvi_core.lqr import NotStabilisingError, policy_iteration, relative_gain_error, solve_lqr
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
 from ddvi_core.simulate import Exploration, simulate_zoh
 from ddvi_core.systems import System
@@ -161,10 +161,19 @@ def collect(system: System, seed: int) -> IntervalCollector:
     norms: list[float] = []
     first = 0.0
     samples = simulate_zoh(
-        pr.A, pr.B, pr.D, pr.E, x0, v0, K0=K0, exploration=exploration,
-        sample_period=cfg.sample_period, command_period=cfg.command_period,
-        duration=cfg.interval * cfg.intervals, input_limit=cfg.input_limit,
-    )  # fmt: skip
+        pr.A,
+        pr.B,
+        pr.D,
+        pr.E,
+        x0,
+        v0,
+        K0=K0,
+        exploration=exploration,
+        sample_period=cfg.sample_period,
+        command_period=cfg.command_period,
+        duration=cfg.interval * cfg.intervals,
+        input_limit=cfg.input_limit,
+    )
     with np.errstate(all="ignore"):
         for t, x, u, v in samples:
             size = float(np.sqrt(x @ x))
@@ -186,12 +195,22 @@ def _learn(system: System, method: str, seed: int) -> Solution:
     t1 = time.perf_counter()
     with np.errstate(all="ignore"):  # a non-finite iterate stops the loop with its reason
         r = learn_from_data(
-            collector.data(), pr.Q, pr.R,
+            collector.data(),
+            pr.Q,
+            pr.R,
             time_unit=cfg.time_unit or float(np.max(np.abs(np.linalg.eigvals(pr.A)))) or 1.0,
-            C=pr.C, E=pr.E, F=pr.F, steps=cfg.steps(), bounds=cfg.bound_schedule(),
-            tol=cfg.tol, max_iterations=cfg.max_iterations, state_scale=cfg.state_scale,
-            rule=cfg.stopping, method=DATA_METHODS[method], K0=cfg.K0_matrix(pr),
-        )  # fmt: skip
+            C=pr.C,
+            E=pr.E,
+            F=pr.F,
+            steps=cfg.steps(),
+            bounds=cfg.bound_schedule(),
+            tol=cfg.tol,
+            max_iterations=cfg.max_iterations,
+            state_scale=cfg.state_scale,
+            rule=cfg.stopping,
+            method=DATA_METHODS[method],
+            K0=cfg.K0_matrix(pr),
+        )
     t2 = time.perf_counter()
     return Solution(
         method,
@@ -223,7 +242,7 @@ def reference_errors(system: System, sol: Solution) -> dict[str, float]:
         ref = solve(system, "lqr")
     except (NotStabilisingError, ValueError):
         return {}
-    out = {"K_error": float(np.linalg.norm(sol.K - ref.K) / np.linalg.norm(ref.K))}
+    out = {"K_error": relative_gain_error(sol.K, ref.K)}
     if ref.L.size and np.linalg.norm(ref.L) > 0:
-        out["L_error"] = float(np.linalg.norm(sol.L - ref.L) / np.linalg.norm(ref.L))
+        out["L_error"] = relative_gain_error(sol.L, ref.L)
     return out

@@ -1,4 +1,5 @@
-"""Built-in scenarios and system files: a regulation problem plus how to learn it.
+"""Built-in scenarios and system tables: a regulation problem plus how to learn it (a system
+file is read by ``services.config.files.load_system``).
 
 A system file is TOML with matrices ``A``, ``B``, ``Q``, ``R`` (lists of rows), optionally
 ``C``, ``D``, ``E``, ``F``, ``name``, ``description``, and a ``[learning]`` table (see
@@ -10,12 +11,9 @@ the key and the problem in one line.
 
 from __future__ import annotations
 
-import difflib
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -44,7 +42,6 @@ __all__ = [
     "System",
     "SystemFile",
     "SystemFileError",
-    "load_system",
     "system_from_table",
 ]
 
@@ -169,24 +166,3 @@ def system_from_table(table: dict[str, Any], default_name: str = "system") -> Sy
     learning, derived = derive_learning(problem, spec.learning, keys)
     learning.validate(problem)
     return System(problem.name, spec.description, problem, learning, derived, tuple(sorted(keys)))
-
-
-def load_system(name_or_path: str) -> System:
-    """A built-in scenario by name, or a system file (TOML) by path."""
-    if name_or_path in BUILTIN_SYSTEMS:
-        return BUILTIN_SYSTEMS[name_or_path]()
-    path = Path(name_or_path)
-    if not path.is_file():
-        close = difflib.get_close_matches(name_or_path, list(BUILTIN_SYSTEMS), n=1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise SystemFileError(
-            f"{name_or_path}: no such built-in scenario or file{hint}; built-ins: "
-            + ", ".join(BUILTIN_SYSTEMS)
-        )
-    try:
-        table = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SystemFileError(f"{path}: not valid TOML ({exc})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SystemFileError(f"{path}: cannot be read ({exc})") from None
-    return system_from_table(table, default_name=path.stem)

@@ -302,9 +302,18 @@ def value_iteration_loop(
     """
     if steps.kind == "implicit":
         return continuation_loop(
-            riccati_map, Q_s, R_s, P0_s, steps.gain, bounds, tol, max_iterations, rule,
-            psd_tol, max_psd_resets,
-        )  # fmt: skip
+            riccati_map,
+            Q_s,
+            R_s,
+            P0_s,
+            steps.gain,
+            bounds,
+            tol,
+            max_iterations,
+            rule,
+            psd_tol,
+            max_psd_resets,
+        )
     if steps.kind == "adaptive" and closed_loop is None:
         raise ValueError("the adaptive step needs closed_loop")
     gain_error_of = _gain_error_of(riccati_map, R_s, P0_s.shape[0]) if rule == "relative" else None

@@ -75,6 +75,14 @@ class WindowedCollector(IntervalCollector):
         N = self.n + self.q
         D = np.array(self._D) if self._D else np.zeros((0, N, N))
         return IntervalData(
-            plain.n, plain.m, plain.q, plain.W, plain.G, plain.w_start, plain.w_end,
-            plain.t_start, plain.t_end, D,
-        )  # fmt: skip
+            plain.n,
+            plain.m,
+            plain.q,
+            plain.W,
+            plain.G,
+            plain.w_start,
+            plain.w_end,
+            plain.t_start,
+            plain.t_end,
+            D,
+        )

@@ -22,8 +22,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     from services.ground.launcher import Launcher
 
     if args.output is not None and not args.output.strip():
-        print("ddvi run: --output is empty; give the folder runs are written to "
-              "(or leave it out for run.output)", file=sys.stderr)  # fmt: skip
+        print(
+            "ddvi run: --output is empty; give the folder runs are written to "
+            "(or leave it out for run.output)",
+            file=sys.stderr,
+        )
         return EXIT_USAGE
     try:
         dep = load_deployment(args.deployment)

@@ -21,11 +21,9 @@ def _rows(M: np.ndarray) -> list[list[float]]:
 
 def _load(name: str):
     """A built-in scenario, a system file, or a shipped example by name (``cart-pole``)."""
-    from ddvi_core.systems import BUILTIN_SYSTEMS, SystemFileError, load_system
-    from services.config.files import system_example
+    from ddvi_core.systems import SystemFileError
+    from services.config.files import load_system
 
-    if name not in BUILTIN_SYSTEMS and (example := system_example(name)) is not None:
-        name = str(example)
     try:
         return load_system(name)
     except SystemFileError as exc:
@@ -60,8 +58,17 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 # the learning settings each method uses (ddvi_core.learning_config.LearningConfig)
-_ITERATION_KEYS = ("time_unit", "state_scale", "step", "step_size", "bounds", "bound_base",
-                   "stopping", "tol", "max_iterations")  # fmt: skip
+_ITERATION_KEYS = (
+    "time_unit",
+    "state_scale",
+    "step",
+    "step_size",
+    "bounds",
+    "bound_base",
+    "stopping",
+    "tol",
+    "max_iterations",
+)
 _SETTINGS_USED = {
     "lqr": (),
     "pi": ("K0",),
@@ -108,8 +115,16 @@ def _print_learned(system: Any, sol: Any, out: dict[str, Any]) -> None:
     for key in ("K_error", "L_error"):
         if key in out:
             print(f"{key} against the Riccati solution: {out[key]:.3e}")
-    keys = ("resets", "rank", "rank_needed", "condition", "residual", "intervals",
-            "initial_gain", "message")  # fmt: skip
+    keys = (
+        "resets",
+        "rank",
+        "rank_needed",
+        "condition",
+        "residual",
+        "intervals",
+        "initial_gain",
+        "message",
+    )
     for key in keys:
         if key in out:
             print(f"{key}: {out[key]}")
@@ -217,9 +232,11 @@ def run_system_command(args: argparse.Namespace) -> int:
         try:
             status = int(args.func(args))
         except NUMERIC_ERRORS as exc:
-            print(f"ddvi {args.command}: {args.system}: its numbers cannot be used "
-                  f"({type(exc).__name__}: {exc}); give finite entries of moderate size",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"ddvi {args.command}: {args.system}: its numbers cannot be used "
+                f"({type(exc).__name__}: {exc}); give finite entries of moderate size",
+                file=sys.stderr,
+            )
             return EXIT_USAGE
     for w in caught:
         warnings.showwarning(w.message, w.category, w.filename, w.lineno)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,8 +15,8 @@ ALLOWED: dict[str, set[str]] = {
     "ddvi_core": set(),
     "services.interface": set(),
     "services.bus": {"services.interface"},
-    "services.config": {"services.interface", "services.bus"},
-    "services.model": {"services.interface", "services.bus", "services.config"},
+    "services.config": {"services.interface"},
+    "services.model": {"services.interface", "services.config"},
     "services.flight": {
         "services.interface",
         "services.bus",
@@ -74,3 +76,12 @@ def test_every_services_package_is_a_known_layer() -> None:
     packages = {f"services.{p.name}" for p in (ROOT / "services").iterdir() if p.is_dir()}
     packages.discard("services.__pycache__")
     assert packages == {layer for layer in ALLOWED if layer.startswith("services.")}
+
+
+@pytest.mark.parametrize("package", ["ddvi_core", "services.interface", "services.config"])
+def test_a_data_layer_loads_without_zenoh(package: str) -> None:
+    """Configuration and the mathematics are data: reading a deployment needs no bus."""
+    code = f"import sys, {package}; print('zenoh' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False", f"importing {package} loads zenoh"

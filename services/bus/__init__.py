@@ -11,15 +11,7 @@ May import: ``services.interface``, zenoh, numpy. Not configuration, models or p
 from services.bus.budget import RateBudget, budget_for, message_count
 from services.bus.endpoint import Bus, queue_handler
 from services.bus.guards import SEQUENCE_REASONS, SequenceGuard, SequenceGuards
-from services.bus.links import (
-    LINK_PARAMETERS,
-    LinkModel,
-    LinkRule,
-    LinkSpec,
-    impairs_truth,
-    rule_latency,
-    select_rule,
-)
+from services.bus.links import LinkModel
 from services.bus.liveliness import router_answers, wait_for_alive, wait_for_gone, watch_alive
 from services.bus.session import (
     DEFAULT_HUB,
@@ -30,6 +22,14 @@ from services.bus.session import (
     error_text,
     open_session,
     zenoh_config,
+)
+from services.interface.links import (
+    LINK_PARAMETERS,
+    LinkRule,
+    LinkSpec,
+    impairs_truth,
+    rule_latency,
+    select_rule,
 )
 
 __all__ = [

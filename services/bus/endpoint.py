@@ -26,10 +26,11 @@ from typing import Any
 import zenoh
 
 from services.bus.budget import Dropped, RateBudget
-from services.bus.links import CLOCKS, LinkModel, LinkRule, rule_latency
+from services.bus.links import CLOCKS, LinkModel
 from services.bus.reception import Handler, Reception, Route
 from services.bus.session import check_name, key_prefix
 from services.interface import MAX_BATCH, MAX_PAYLOAD, Message, encode, pack_batch
+from services.interface.links import LinkRule, rule_latency
 from services.interface.topics import alive_topic
 
 MSGPACK_ENCODING = "application/msgpack"
@@ -107,8 +108,9 @@ class Bus:
         self._routes: list[Route] = []
         self._token: zenoh.LivelinessToken | None = None
         self._closed = False
-        self._rx = Reception(self.service, self.prefix, links, link_clock, seed, time_window,
-                             budget)  # fmt: skip
+        self._rx = Reception(
+            self.service, self.prefix, links, link_clock, seed, time_window, budget
+        )
 
     @property
     def budget(self) -> RateBudget | None:
@@ -251,8 +253,9 @@ class Bus:
         """
         if self._closed:
             raise RuntimeError(f"bus of {self.service} is closed")
-        route = Route(self._rx, handler, expected_schema, link, observe,
-                      index=len(self._routes), lost=lost)  # fmt: skip
+        route = Route(
+            self._rx, handler, expected_schema, link, observe, index=len(self._routes), lost=lost
+        )
         if "*" not in topic_pattern:
             route.key = self.prefix + topic_pattern
         route.subscriber = self.session.declare_subscriber(

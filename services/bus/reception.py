@@ -23,8 +23,9 @@ import zenoh
 
 from services.bus.budget import Dropped, RateBudget
 from services.bus.guards import ORIGIN_REASONS, SEQUENCE_REASONS, SequenceGuards, check_origin
-from services.bus.links import LinkModel, LinkRule, select_rule
+from services.bus.links import LinkModel
 from services.interface import REASONS, Message, MessageError, decode, unpack_batch
+from services.interface.links import LinkRule, select_rule
 from services.interface.topics import CLOCK
 
 log = logging.getLogger("ddvi.bus")
@@ -50,9 +51,16 @@ class Reception:
     seed, the origin check's time window, the rate budget, the receiver's simulation time (as
     last given to ``Bus.pump``) and the counters of what was received."""
 
-    def __init__(self, service: str, prefix: str, rules: Iterable[LinkRule], link_clock: str,
-                 seed: int, time_window: tuple[float, float] | None,
-                 budget: RateBudget | None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        service: str,
+        prefix: str,
+        rules: Iterable[LinkRule],
+        link_clock: str,
+        seed: int,
+        time_window: tuple[float, float] | None,
+        budget: RateBudget | None,
+    ) -> None:
         self.service, self.prefix = service, prefix
         self.rules = list(rules)
         self.rule_cache: dict[tuple[str, str], int | None] = {}
@@ -190,8 +198,12 @@ class Route:
                 log.exception("%s: error decoding on %s", rx.service, topic)
                 continue
             if (why := check_origin(message, topic, rx.time_window)) is not None:
-                rx.reject(key, why, f"seq {message.seq} from {message.src!r} at t = "
-                          f"{message.t:g}: " + _ORIGIN_TEXT[why])  # fmt: skip
+                rx.reject(
+                    key,
+                    why,
+                    f"seq {message.seq} from {message.src!r} at t = "
+                    f"{message.t:g}: " + _ORIGIN_TEXT[why],
+                )
                 continue
             messages.append(message)
             if rx.budget is not None and topic == CLOCK:  # the time master's, checked above
@@ -206,8 +218,12 @@ class Route:
                     if (why := self.wire.check(message, topic, missed)) is None:
                         fresh.append(message)
                     else:
-                        rx.reject(key, why, f"seq {message.seq} from {message.src} at t = "
-                                  f"{message.t:g}: " + _SEQUENCE_TEXT[why])  # fmt: skip
+                        rx.reject(
+                            key,
+                            why,
+                            f"seq {message.seq} from {message.src} at t = "
+                            f"{message.t:g}: " + _SEQUENCE_TEXT[why],
+                        )
                 items: list[tuple[str, Message]] = []
                 direct = self.link is None and not rx.rules  # no link to choose per message
                 for message in fresh:

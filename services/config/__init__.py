@@ -2,7 +2,8 @@
 physical range of every number: ``ranges``) and its files (``files``); the strict TOML reader
 they use is ``ddvi_core.tables``.  A deployment is data: reading one starts nothing.
 
-May import: ``ddvi_core``, ``services.bus`` (its link model). Not models, processes or tools.
+May import: ``ddvi_core``, ``services.interface`` (its topics and the links' declaration).
+Not the bus (so not zenoh), models, processes or tools.
 """
 
 from services.config.deployment import (

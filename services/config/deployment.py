@@ -16,7 +16,7 @@ from typing import Any
 
 from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
-from services.bus import LinkRule, LinkSpec, rule_latency
+from services.interface.links import LinkRule, LinkSpec, rule_latency
 
 __all__ = [
     "DEPUTY_LEARNING_KEYS",

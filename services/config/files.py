@@ -14,16 +14,20 @@ import difflib
 import sysconfig
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from services.config.deployment import Deployment, DeploymentError
 from services.config.validation import deployment_from_table
+
+if TYPE_CHECKING:
+    from ddvi_core.systems import System
 
 __all__ = [
     "DEPLOYMENTS_DIR",
     "campaign_file",
     "deployment_dirs",
     "load_deployment",
+    "load_system",
     "read_table",
     "resolve",
     "system_example",
@@ -87,6 +91,34 @@ def campaign_file(name_or_path: str) -> Path | None:
 def system_example(name_or_path: str) -> Path | None:
     """A system file by path, or a shipped example by name (``cart-pole``); None if none."""
     return _shipped(name_or_path, shared_dirs("docs/examples/systems"))
+
+
+def load_system(name_or_path: str) -> System:
+    """A built-in scenario by name, a shipped example by name (``cart-pole``), or a system
+    file (TOML) by path; SystemFileError names what is wrong."""
+    # the mathematics (scipy) only for a command that learns: `ddvi fault` reads deployments
+    from ddvi_core.systems import BUILTIN_SYSTEMS, SystemFileError, system_from_table
+
+    if name_or_path in BUILTIN_SYSTEMS:
+        return BUILTIN_SYSTEMS[name_or_path]()
+    path = system_example(name_or_path)
+    if path is None or not path.is_file():
+        folders = shared_dirs("docs/examples/systems")
+        examples = sorted({f.stem for folder in folders for f in folder.glob("*.toml")})
+        close = difflib.get_close_matches(name_or_path, [*BUILTIN_SYSTEMS, *examples], n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        raise SystemFileError(
+            f"{name_or_path}: no such built-in scenario, example or file{hint}; built-ins: "
+            + ", ".join(BUILTIN_SYSTEMS)
+            + (f"; examples: {', '.join(examples)}" if examples else "")
+        )
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SystemFileError(f"{path}: not valid TOML ({exc})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SystemFileError(f"{path}: cannot be read ({exc})") from None
+    return system_from_table(table, default_name=path.stem)
 
 
 def resolve(name_or_path: str | None) -> Path:

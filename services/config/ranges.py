@@ -15,8 +15,8 @@ import re
 from collections.abc import Iterable
 
 from ddvi_core.constants import MU_EARTH, R_EARTH
-from services.bus import LinkSpec
 from services.config.deployment import Deployment, DeploymentError, Deputy, Orbit
+from services.interface.links import LinkSpec
 
 MAX_DEPUTIES = 100
 """Deputies a deployment may have: each is two processes (navigation, controller)."""
@@ -136,8 +136,9 @@ def _check_deputy_ranges(w: str, d: Deputy, dep: Deployment) -> None:
     within(f"{where}.bound_base", lrn.bound_base, 0.0, 1e12, open_lo=True)
     within(f"{where}.learn_at_orbits", lrn.learn_at_orbits, 0.0, MAX_ORBITS, open_lo=True)
     within(f"{where}.retry_orbits", lrn.retry_orbits, 0.0, MAX_ORBITS, open_lo=True)
-    _all_within(f"{where}.exploration_frequencies", lrn.exploration_frequencies, 0.0, 1e3,
-                open_lo=True)  # fmt: skip
+    _all_within(
+        f"{where}.exploration_frequencies", lrn.exploration_frequencies, 0.0, 1e3, open_lo=True
+    )
     if lrn.K0 is not None:
         _all_within(f"{where}.K0", [v for row in lrn.K0 for v in row], -1e12, 1e12)
 

@@ -15,7 +15,6 @@ from typing import Any
 
 from ddvi_core.relnav import FRAMES
 from ddvi_core.tables import from_table
-from services.bus import impairs_truth
 from services.config.deployment import (
     FAULT_KINDS,
     RESTART_POLICIES,
@@ -32,6 +31,7 @@ from services.config.ranges import (
     check_ranges,
     mission_seconds,
 )
+from services.interface.links import impairs_truth
 
 __all__ = [
     "CHECKS",
@@ -93,8 +93,9 @@ def check_environment(dep: Deployment) -> None:
     for key in ("density_factor", "max_step", "basilisk_step"):
         _positive(f"environment.{key}", getattr(env, key))
     if env.backend == "basilisk":
-        _multiple("run.nav_period", dep.run.nav_period, env.basilisk_step,
-                  "environment.basilisk_step")  # fmt: skip
+        _multiple(
+            "run.nav_period", dep.run.nav_period, env.basilisk_step, "environment.basilisk_step"
+        )
 
 
 def check_bodies(dep: Deployment) -> None:

@@ -103,8 +103,11 @@ class CommandGate:
             if wait and late and waiting.said_at(time.monotonic()):
                 counters["paused_steps"] += 1
                 names = ", ".join(f"{what} from {name}" for name, what in late)
-                self.ctx.log("warning", f"lock-step paused at t = {t_k:.0f} s: no {names} "
-                             f"for {waiting.said:g} s", t_k)  # fmt: skip
+                self.ctx.log(
+                    "warning",
+                    f"lock-step paused at t = {t_k:.0f} s: no {names} for {waiting.said:g} s",
+                    t_k,
+                )
             if wait and late and waiting.over(time.monotonic()):
                 raise HangError(*late[0], t_k, self.run.hang_timeout)
             waits = [waiting.until] if late else []
@@ -218,5 +221,8 @@ class CommandGate:
         elif sc in self.latest_for_t and not up and sc in self.present:
             self.present.discard(sc)
             self.away_since[sc] = time.monotonic()
-            self.ctx.log("warning", f"controller of {sc} went away at t = {t_k:.0f} s; "
-                         "holding its last command", t_k)  # fmt: skip
+            self.ctx.log(
+                "warning",
+                f"controller of {sc} went away at t = {t_k:.0f} s; holding its last command",
+                t_k,
+            )

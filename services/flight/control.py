@@ -191,8 +191,16 @@ class Controller:
         learned = self.learned_at[-1] if self.learned_at else t
         since = t + lrn.relearn_settle_orbits * self.orbit
         window = lrn.relearn_window_orbits * self.orbit
-        self.relearning = Relearning(self.K, self.L, self.exosystem, learned, learner.store,
-                                     (self.rank, self.rank_needed), since, window)  # fmt: skip
+        self.relearning = Relearning(
+            self.K,
+            self.L,
+            self.exosystem,
+            learned,
+            learner.store,
+            (self.rank, self.rank_needed),
+            since,
+            window,
+        )
         self.phases.move(Phase.RELEARNING)
         self.converged, self.source = False, "initial"  # flying K0 again until it re-learns
         self.exostate.add_density_ratio()

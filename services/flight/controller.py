@@ -69,10 +69,12 @@ def main(ctx: ServiceContext) -> int:
     def lost(topic: str) -> None:
         inbox.put((_LOST, topic))
 
-    ctx.bus.subscribe(nav_state_topic(sc), queue_handler(inbox), expected_schema="nav",
-                      observe=seen, lost=lost)  # fmt: skip
-    ctx.bus.subscribe(EXOSTATE, queue_handler(inbox), expected_schema="exo", observe=seen,
-                      lost=lost)  # fmt: skip
+    ctx.bus.subscribe(
+        nav_state_topic(sc), queue_handler(inbox), expected_schema="nav", observe=seen, lost=lost
+    )
+    ctx.bus.subscribe(
+        EXOSTATE, queue_handler(inbox), expected_schema="exo", observe=seen, lost=lost
+    )
     ctx.bus.subscribe(CLOCK, queue_handler(inbox), expected_schema="clock")
     presence = watch_alive(
         ctx.bus.session, ctx.run, f"nav-{sc}", lambda _name, up: inbox.put((_PRESENCE, up))
@@ -117,9 +119,14 @@ class ControllerService:
         self.recent: collections.deque[Sample] = collections.deque(
             maxlen=math.ceil(delay / nav_period) + 8
         )
-        self.counters = {"commands": 0, "samples_rejected": 0, "learn_attempts": 0,
-                         "fault_detections": 0, "relearning_abandoned": 0,
-                         "safe_attitude_steps": 0}  # fmt: skip
+        self.counters = {
+            "commands": 0,
+            "samples_rejected": 0,
+            "learn_attempts": 0,
+            "fault_detections": 0,
+            "relearning_abandoned": 0,
+            "safe_attitude_steps": 0,
+        }
         self.steps = 0
         # a restarted controller flies from the first step it has a sample for (on_sample)
         self.next_tick = math.inf if ctx.joining else 0.0

@@ -235,8 +235,13 @@ class EnvironmentService:
             self.publish_clock(t, fsw_step, final)
 
     def publish_clock(self, t: float, fsw_step: bool, final: bool) -> None:
-        body = {"step": self.step, "dt": self.dt, "fsw": fsw_step, "mode": self.run_cfg.mode,
-                "final": final}  # fmt: skip
+        body = {
+            "step": self.step,
+            "dt": self.dt,
+            "fsw": fsw_step,
+            "mode": self.run_cfg.mode,
+            "final": final,
+        }
         self.ctx.bus.publish(CLOCK, "clock", body, t)
 
     # -- panel faults ------------------------------------------------------------------------
@@ -267,8 +272,12 @@ class EnvironmentService:
                 self.ctx.log("warning", f"fault panel {sc}: refused ({exc})", t_k)
                 continue
             self.counters["panel_faults"] += 1
-            self.ctx.log("warning", f"fault panel {sc}: {describe_panel(factor, angle)} "
-                         f"from t = {t_k:.0f} s ({fault.origin})", t_k)  # fmt: skip
+            self.ctx.log(
+                "warning",
+                f"fault panel {sc}: {describe_panel(factor, angle)} "
+                f"from t = {t_k:.0f} s ({fault.origin})",
+                t_k,
+            )
 
 
 if __name__ == "__main__":

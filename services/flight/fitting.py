@@ -28,7 +28,7 @@ from ddvi_core.exostate_fit import exostate_groups, fit_exosystem_input, static_
 from ddvi_core.fit_uncertainty import gain_standard_error
 from ddvi_core.learning import LearningError
 from ddvi_core.learning_config import LearningConfig
-from ddvi_core.lqr import NotStabilisingError, solve_lqr
+from ddvi_core.lqr import NotStabilisingError, relative_gain_error, solve_lqr
 from ddvi_core.model_fit import (
     IntegralData,
     ModelFitError,
@@ -58,8 +58,12 @@ def fit_attempt(
     :func:`validate_gain` on the newest ``holdout`` s.  Raises LearningError (ModelFitError)
     when a fit gives no gains."""
     C, E, F = exosystem
-    options = {"length": lrn.interval, "stride": lrn.fit_stride,
-               "smoothing": lrn.fit_smoothing, "translation": translation}  # fmt: skip
+    options = {
+        "length": lrn.interval,
+        "stride": lrn.fit_stride,
+        "smoothing": lrn.fit_smoothing,
+        "translation": translation,
+    }
     r = learn_by_model_fit(data, problem.Q, problem.R, C=C, E=E, F=F, **options)
     fit = r.model
     error = gain_standard_error(data, r.K, problem.Q, problem.R, **options)
@@ -71,9 +75,15 @@ def fit_attempt(
     except InfeasibleError as exc:
         raise ModelFitError(f"the kinematic fit gives no feedforward: {exc}") from None
     r = dataclasses.replace(r, L=feedforward_gain(r.K, X, U), X=X, U=U, model=kin)
-    info = {"condition": fit.condition, "residual": fit.residual, "error": error,
-            "intervals": fit.intervals, "rank": fit.rank, "needed": fit.needed,
-            "B": kin.B.ravel().tolist()}  # fmt: skip
+    info = {
+        "condition": fit.condition,
+        "residual": fit.residual,
+        "error": error,
+        "intervals": fit.intervals,
+        "rank": fit.rank,
+        "needed": fit.needed,
+        "B": kin.B.ravel().tolist(),
+    }
     if error > tolerance:
         why = f"the gain's predicted relative error {error:.3g} exceeds the tolerance"
         return r, info, f"{why} {tolerance:g}; fit condition {fit.condition:.3g}"
@@ -127,7 +137,7 @@ def validate_gain(
     worst = float(np.max(relative))
     try:
         K_train = solve_lqr(model.A, model.B, problem.Q, problem.R).K
-        change = float(np.linalg.norm(K_train - K) / np.linalg.norm(K))
+        change = relative_gain_error(K_train, K)
     except NotStabilisingError:  # no gain: nothing K could agree with
         change = math.inf
     info.update(validation=worst, validation_margin=margin, validation_gain=change)
@@ -171,8 +181,15 @@ def select_feedforward_modes(
     static = lrn.feedforward_modes == "static"
     groups = static_groups(E) if static or on_station else exostate_groups(E)
     return fit_exosystem_input(
-        data, model.A, model.B, length=lrn.interval, stride=lrn.fit_stride,
-        smoothing=lrn.fit_smoothing, positions=POSITIONS, groups=groups,
-        significance=lrn.feedforward_significance, matched=static,
+        data,
+        model.A,
+        model.B,
+        length=lrn.interval,
+        stride=lrn.fit_stride,
+        smoothing=lrn.fit_smoothing,
+        positions=POSITIONS,
+        groups=groups,
+        significance=lrn.feedforward_significance,
+        matched=static,
         held=model.D if on_station and not static else None,
-    )  # fmt: skip
+    )

@@ -8,15 +8,13 @@ import time
 
 import numpy as np
 
-from ddvi_core.constants import R_EARTH
 from services.config import Deployment
 from services.flight.control import Controller
-from services.flight.navigation import navigation_filter, noise_generator
+from services.flight.relative_navigation import RelativeNavigation
 from services.model import (
     IN_PLANE,
     duration,
     exostate,
-    navigation_state,
     on_grid,
     open_truth,
     panel_schedule,
@@ -24,9 +22,12 @@ from services.model import (
 
 
 def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> dict[str, dict]:
-    """Run ``dep`` to the end; per deputy: times (K,), truth Hill states (K, 6), commands (K,),
-    the controller object (final gains, phase) and its learning log lines.  Each deputy's
-    navigation noise is drawn as its navigation service draws it (``noise_generator``).
+    """Run ``dep`` to the end; per deputy, at its navigation samples: times ``t`` (K,), the
+    truth ``x`` (K, 6) in navigation's frame, the measurement ``z`` (K, 6), the estimate
+    ``estimate`` (K, 6) and its covariance ``cov`` (K, 6, 6), the command in force ``u``
+    (K,); the ``controller`` object (final gains, phase) and its learning ``log`` lines.
+    Each deputy's navigation is its navigation service's (``RelativeNavigation``: the same
+    noise draws, bias faults and filter).
 
     ``timing``, if given, gets the wall seconds of each service's share: ``environment``
     (truth, exostate), ``nav-<deputy>`` (states, bias, noise, filter), ``ctrl-<deputy>``
@@ -39,33 +40,23 @@ def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> d
     fsw, t_end = run.fsw_period, duration(dep)
     truth = open_truth(dep)
     ctrls = [Controller(dep, d.name) for d in dep.deputy]
-    rngs = [noise_generator(dep, d) for d in dep.deputy]
-    out = {d.name: {"t": [], "x": [], "u": [], "log": []} for d in dep.deputy}
+    navigations = [RelativeNavigation(dep, d) for d in dep.deputy]
+    series = ("t", "x", "z", "estimate", "cov", "u")
+    out = {d.name: {**{k: [] for k in series}, "log": []} for d in dep.deputy}
     sigma = np.zeros((len(ctrls), 3))
-    navs = [d.navigation for d in dep.deputy]
-    biases = [np.array(nav.position_bias + nav.velocity_bias) for nav in navs]
-    noises = [np.array([nav.position_noise] * 3 + [nav.velocity_noise] * 3) for nav in navs]
-    filters = [navigation_filter(dep, d) for d in dep.deputy]  # None: the measurement as is
 
     def sample(t: float, X: np.ndarray) -> None:
         t0 = clock()
         v, _ = exostate(dep, t)
         spent["environment"] += clock() - t0
         for i, (d, c) in enumerate(zip(dep.deputy, ctrls, strict=True)):
-            if not on_grid(t, navs[i].period):
+            if not on_grid(t, navigations[i].period):
                 continue
             t0 = clock()
-            x6 = navigation_state(dep, d, X[0], X[i + 1])
-            noisy = x6 + biases[i]
-            if noises[i].any():  # as the navigation service: no draw without noise
-                noisy = noisy + rngs[i].normal(0, 1, 6) * noises[i]
-            estimate = noisy
-            if filters[i] is not None:
-                estimate, _ = filters[i].update(t, noisy)
-            altitude = float(np.linalg.norm(X[i + 1, :3])) - R_EARTH
+            nav = navigations[i].measure(t, X[0], X[i + 1])
             t1 = clock()
             plane = list(IN_PLANE)  # the controller's state: x, y and their rates
-            outcome = c.on_sample(t, estimate[plane], v, altitude, noisy[plane])
+            outcome = c.on_sample(t, nav.x[plane], v, nav.altitude, nav.z[plane])
             spent[f"nav-{d.name}"] += t1 - t0
             spent[f"ctrl-{d.name}"] += clock() - t1
             if outcome.learn_log is not None:
@@ -74,13 +65,16 @@ def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> d
                 sigma[i] = [0.0, 0.0, c.u]
             rec = out[d.name]
             rec["t"].append(t)
-            rec["x"].append(x6)
+            rec["x"].append(nav.truth)
+            rec["z"].append(nav.z)
+            rec["estimate"].append(nav.x)
+            rec["cov"].append(nav.cov)
             rec["u"].append(c.u)
 
     sample(0.0, truth.state)
     t_k = 0.0
     names = [d.name for d in dep.deputy]
-    # panel faults as the environment applies them (navigation-bias faults are not modelled)
+    # panel faults as the environment applies them
     panels = panel_schedule(dep)
     steps = 0
     try:
@@ -101,6 +95,6 @@ def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> d
         timing.update(spent, steps=steps)
     for d, c in zip(dep.deputy, ctrls, strict=True):
         rec = out[d.name]
-        rec["t"], rec["x"], rec["u"] = (np.array(rec[k]) for k in ("t", "x", "u"))
+        rec.update({k: np.array(rec[k]) for k in series})
         rec["controller"] = c
     return out

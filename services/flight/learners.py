@@ -122,14 +122,26 @@ class ValueIterationLearner(Learner):
         lrn, pr, n = self.lrn, self.problem, self.n_rate
         C, E, F = exosystem
         r = learn_from_data(
-            data, pr.Q, pr.R, time_unit=n, C=C, E=E, F=F,
+            data,
+            pr.Q,
+            pr.R,
+            time_unit=n,
+            C=C,
+            E=E,
+            F=F,
             steps=StepSequence(lrn.step, lrn.step_size),
             bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
-            tol=lrn.tol, max_iterations=lrn.max_iterations,
-            state_scale=[1.0, 1.0, n, n], translation=self.translation,
-        )  # fmt: skip
-        info = {"condition": r.condition, "residual": r.residual, "intervals": r.intervals,
-                "iterations": r.iterations}  # fmt: skip
+            tol=lrn.tol,
+            max_iterations=lrn.max_iterations,
+            state_scale=[1.0, 1.0, n, n],
+            translation=self.translation,
+        )
+        info = {
+            "condition": r.condition,
+            "residual": r.residual,
+            "intervals": r.intervals,
+            "iterations": r.iterations,
+        }
         refused = None if r.converged else f"did not converge ({r.message})"
         return Attempt(r, info, refused, (r.rank, r.rank_needed))
 
@@ -146,8 +158,15 @@ class ModelFitLearner(Learner):
     def new_store(self, q: int) -> IntegralHistory:
         lrn, nav = self.lrn, self.nav_period
         window = lrn.window_orbits * self.orbit if lrn.window_orbits > 0 else 1e6
-        return IntegralHistory(4, 1, q, lrn.interval, lrn.fit_stride, max_gap=3 * nav,
-                               max_samples=math.ceil(window / nav) + 2)  # fmt: skip
+        return IntegralHistory(
+            4,
+            1,
+            q,
+            lrn.interval,
+            lrn.fit_stride,
+            max_gap=3 * nav,
+            max_samples=math.ceil(window / nav) + 2,
+        )
 
     def learn(self, data: Any, exosystem: tuple, due: float) -> Attempt:
         """With the tolerance in force for the attempt due at ``due``: ``fit_tolerance``, or

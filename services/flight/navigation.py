@@ -16,41 +16,19 @@ from __future__ import annotations
 
 import queue
 import sys
-import zlib
 
 import numpy as np
 
-from ddvi_core.constants import R_EARTH
-from ddvi_core.navfilter import RelativeNavFilter
 from services.bus import queue_handler
-from services.config import Deployment, DeploymentError, Deputy, Fault, check_fault
+from services.config import DeploymentError, Fault, check_fault
+from services.flight.relative_navigation import RelativeNavigation
 from services.flight.runtime import ServiceContext, run_service
-from services.flight.streams import FaultQueue, FinalClock, SamplePairs
+from services.flight.streams import FinalClock, SamplePairs
 from services.interface import CLOCK, Message, fault_topic, nav_state_topic, truth_topic
-from services.model import mean_motion, navigation_state, on_grid, orbit_period
+from services.model import on_grid
 
 BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
 """The params of a bias fault: position (m) and velocity (m/s) bias, in navigation's frame."""
-
-
-def noise_generator(dep: Deployment, deputy: Deputy) -> np.random.Generator:
-    """The deputy's navigation noise draws: seeded by run.seed, navigation.seed and its name
-    (its CRC-32: names of the same letters differ), so each deputy's noise is its own,
-    whichever other deputies fly (and the one-process baseline draws what the navigation
-    service does)."""
-    name = zlib.crc32(deputy.name.encode())
-    return np.random.default_rng([dep.run.seed, deputy.navigation.seed, name])
-
-
-def navigation_filter(dep: Deployment, deputy: Deputy) -> RelativeNavFilter | None:
-    """The deputy's relative navigation filter as its deployment sets it (HCW at the chief's
-    mean motion, the measurement's sigmas, the unmodelled acceleration), or None for
-    ``navigation.filter = "none"``."""
-    nav = deputy.navigation
-    if nav.filter == "none":
-        return None
-    sigma = [nav.position_noise] * 3 + [nav.velocity_noise] * 3
-    return RelativeNavFilter(mean_motion(dep), sigma, nav.acceleration_noise, nav.period)
 
 
 def main(ctx: ServiceContext) -> int:
@@ -59,8 +37,8 @@ def main(ctx: ServiceContext) -> int:
 
 class NavigationService:
     """Pairs the chief's and the deputy's truth by time and publishes, on the navigation grid,
-    the deputy's relative state: the filter's estimate of the measurement (truth with the bias
-    in force and white noise) and its covariance.
+    the deputy's relative state (``RelativeNavigation``: the filter's estimate of the
+    measurement, truth with the bias in force and white noise, and its covariance).
 
     Parameters
     ----------
@@ -71,14 +49,8 @@ class NavigationService:
         self.ctx = ctx
         self.sc = sc = ctx.name.removeprefix("nav-")
         self.deputy = ctx.deployment.deputy_named(sc)
-        cfg = self.deputy.navigation
-        self.period = cfg.period
-        self.rng = noise_generator(ctx.deployment, self.deputy)
-        self.sigma = np.array([cfg.position_noise] * 3 + [cfg.velocity_noise] * 3)
-        self.bias = np.array(cfg.position_bias + cfg.velocity_bias)
-        self.filter = navigation_filter(ctx.deployment, self.deputy)  # None: publish z as is
-        self.R = np.diag(self.sigma**2)  # the covariance published without a filter
-        self.measured = np.zeros(6)  # the last measurement, before the filter
+        self.navigation = RelativeNavigation(ctx.deployment, self.deputy)
+        self.period = self.deputy.navigation.period
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
         # two subscriptions interleave arbitrarily, and samples are paired by time
@@ -88,15 +60,6 @@ class NavigationService:
             )
         ctx.bus.subscribe(CLOCK, queue_handler(self.inbox), expected_schema="clock")
         ctx.bus.subscribe(fault_topic("bias"), queue_handler(self.inbox), expected_schema="fault")
-        # bias faults: the deployment's at their times, the ground's from the next sample on
-        orbit = orbit_period(ctx.deployment)
-        self.bias_faults: FaultQueue[np.ndarray] = FaultQueue(
-            [
-                (f.at_orbits * orbit, np.array(f.position_bias + f.velocity_bias))
-                for f in ctx.deployment.fault
-                if f.kind == "bias" and f.deputy == sc
-            ]
-        )
         if ctx.joining:
             ctx.log("warning", "restarted into the running mission: publishing from the next truth")
         else:
@@ -153,7 +116,7 @@ class NavigationService:
             said = f"fault bias {self.sc}: refused ({exc}; params {BIAS_KEYS}, got {p})"
             self.ctx.log("warning", said, msg.t)
             return
-        self.bias_faults.from_ground(np.array(values, dtype=float), msg.src)
+        self.navigation.bias_from_ground(np.array(values, dtype=float), msg.src)
 
     def on_truth(self, msg: Message) -> None:
         """One craft's truth: once both craft of its time are in, publish the sample if it is
@@ -171,23 +134,21 @@ class NavigationService:
         self.counters["unmatched"] += len(self.pairs.forget_before(horizon))
 
     def publish(self, t: float, chief: np.ndarray, deputy: np.ndarray) -> None:
-        """The navigation sample at t from the chief's and the deputy's inertial states (6,):
-        the measurement (the bias in force from t on, white noise) through the filter."""
+        """The navigation sample at t from the chief's and the deputy's inertial states (6,)."""
         sc = self.sc
-        for fault in self.bias_faults.pop_due(t):
-            self.bias = fault.value
+        sample = self.navigation.measure(t, chief, deputy)
+        for fault in sample.biased:
             self.counters["bias_faults"] += 1
-            self.ctx.log("warning", f"fault bias {sc}: navigation bias now {self.bias.tolist()} "
-                         f"from t = {t:.0f} s ({fault.origin})", t)  # fmt: skip
-        x = navigation_state(self.ctx.deployment, self.deputy, chief, deputy) + self.bias
-        if self.sigma.any():
-            x = x + self.rng.normal(0.0, 1.0, 6) * self.sigma
-        self.measured, cov = x, self.R
-        if self.filter is not None:
-            x, cov = self.filter.update(t, x)
-        altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
-        body = {"sc": sc, "x_hill": x, "z_hill": self.measured, "cov": cov, "altitude": altitude,
-                "valid": True}  # fmt: skip
+            said = f"fault bias {sc}: navigation bias now {fault.value.tolist()} from t = {t:.0f} s"
+            self.ctx.log("warning", f"{said} ({fault.origin})", t)
+        body = {
+            "sc": sc,
+            "x_hill": sample.x,
+            "z_hill": sample.z,
+            "cov": sample.cov,
+            "altitude": sample.altitude,
+            "valid": True,
+        }
         self.ctx.bus.publish(nav_state_topic(sc), "nav", body, t)
         self.counters["published"] += 1
         self.last_t = t

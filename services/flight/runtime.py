@@ -122,10 +122,16 @@ class ServiceContext:
             return
         spec, publisher, topic = link.spec, link.publisher, link.topic
         self.bus.add_link_rule(LinkRule(publisher, topic, spec))
-        impairments = ", ".join(f"{k} {getattr(spec, k):g}" for k in LINK_PARAMETERS
-                                if getattr(spec, k)) or "none"  # fmt: skip
-        self.log("warning", where + f"{self.name} now receives {topic} from {publisher} with "
-                 f"{impairments} (from t = {msg.t:.0f} s)", msg.t)  # fmt: skip
+        impairments = (
+            ", ".join(f"{k} {getattr(spec, k):g}" for k in LINK_PARAMETERS if getattr(spec, k))
+            or "none"
+        )
+        self.log(
+            "warning",
+            where + f"{self.name} now receives {topic} from {publisher} with "
+            f"{impairments} (from t = {msg.t:.0f} s)",
+            msg.t,
+        )
 
     def log(self, level: str, text: str, t: float = 0.0) -> None:
         getattr(log, level if level in ("info", "warning", "error") else "info")(text)
@@ -231,9 +237,15 @@ def rate_budget(dep: Deployment, run: str) -> RateBudget:
 def bus_settings(dep: Deployment, hub: str, credentials: Credentials | None = None) -> BusSettings:
     connect, lease = [hub, *dep.bus.connect], dep.session_lease_ms()
     if credentials is not None:  # a secure bus: the hub's client, listening on nothing
-        return BusSettings(mode="client", listen=[], connect=connect, user=credentials.user,
-                           password=credentials.password, tls=credentials.tls,
-                           lease_ms=lease)  # fmt: skip
+        return BusSettings(
+            mode="client",
+            listen=[],
+            connect=connect,
+            user=credentials.user,
+            password=credentials.password,
+            tls=credentials.tls,
+            lease_ms=lease,
+        )
     if dep.bus.mode == "client":
         return BusSettings(mode="client", listen=[], connect=connect, lease_ms=lease)
     return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect, lease_ms=lease)
@@ -300,8 +312,11 @@ def run_service(
             # the subscription (the launcher starts the monitor with the others: a short wait)
             wait = max(MONITOR_WAIT, dep.run.startup_timeout)
             if args.name != "monitor" and not _see_monitor(session, args.run, stop, wait):
-                log.warning("the monitor is not seen after %g s: what this service publishes "
-                            "before it is may not be recorded", wait)  # fmt: skip
+                log.warning(
+                    "the monitor is not seen after %g s: what this service publishes "
+                    "before it is may not be recorded",
+                    wait,
+                )
             bus.subscribe(fault_topic("link"), ctx.on_link_fault, expected_schema="fault")
             status = main(ctx)
             bus.declare_alive()  # no-op if the service declared itself ready

@@ -112,8 +112,10 @@ class StepGate:
         who = f"nav-{self.sc}" if reached["nav"] < want - 1e-6 else "environment"
         now = time.monotonic()
         if waiting.said_at(now):
-            say(f"lock-step paused at t = {T:.0f} s: no sample for t = {want:.0f} s from {who} "
-                f"for {waiting.said:g} s")  # fmt: skip
+            say(
+                f"lock-step paused at t = {T:.0f} s: no sample for t = {want:.0f} s from {who} "
+                f"for {waiting.said:g} s"
+            )
         if waiting.over(now):
             raise HangError(who, f"sample for t = {want:.0f} s", T, waiting.hang)
 

@@ -43,15 +43,21 @@ def hub_settings(
     secure = dep.bus.security
     hosts = [e.split("/", 1)[1].rsplit(":", 1)[0] for e in listen[1:]]
     if secure and hosts:
-        listen = [listen[0], *(host_endpoint(dep, a, e.rsplit(":", 1)[1])
-                               for a, e in zip(hosts, listen[1:], strict=True))]  # fmt: skip
+        listen = [
+            listen[0],
+            *(
+                host_endpoint(dep, a, e.rsplit(":", 1)[1])
+                for a, e in zip(hosts, listen[1:], strict=True)
+            ),
+        ]
     info = {"run": run, "hub": listen[0], "listen": listen, "security": secure}
     # new, never through a link: a bus.json another user planted is refused, not followed
     write_private(out / BUS_FILE, json.dumps(info, indent=1) + "\n", mode=0o644)
     connect = list(dep.bus.connect)
     if not secure:
-        return BusSettings(mode="router" if dep.bus.mode == "client" else "peer",
-                           listen=listen, connect=connect)  # fmt: skip
+        return BusSettings(
+            mode="router" if dep.bus.mode == "client" else "peer", listen=listen, connect=connect
+        )
     users = [*services, OPERATOR, OBSERVER]
     router_tls, client_tls = issue_tls(out, hosts) if hosts else ({}, {})
     router = issue_credentials(out, users, client_tls)[ROUTER]
@@ -85,8 +91,14 @@ def client_settings(
     connect = [hub, *extra]
     if credentials is None:
         return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
-    return BusSettings(mode="client", listen=[], connect=connect, user=credentials.user,
-                       password=credentials.password, tls=credentials.tls)  # fmt: skip
+    return BusSettings(
+        mode="client",
+        listen=[],
+        connect=connect,
+        user=credentials.user,
+        password=credentials.password,
+        tls=credentials.tls,
+    )
 
 
 @dataclass(frozen=True)

@@ -40,12 +40,16 @@ class Ending:
             if graced and (unrecorded := mon.data.unrecorded()):
                 graced = False  # published and not here yet: wait for it, up to FINAL_WAIT
                 if not self.waited_for:
-                    log.info("waiting for what was published and has not come: %s",
-                             _by_publisher(unrecorded))  # fmt: skip
+                    log.info(
+                        "waiting for what was published and has not come: %s",
+                        _by_publisher(unrecorded),
+                    )
                 self.waited_for = unrecorded
             elif graced and self.waited_for:
-                log.info("what was awaited came %.2f s after the last token went",
-                         now - (self.grace_deadline or now) + FINAL_GRACE)  # fmt: skip
+                log.info(
+                    "what was awaited came %.2f s after the last token went",
+                    now - (self.grace_deadline or now) + FINAL_GRACE,
+                )
             if graced or now >= self.final_deadline:
                 if missing := mon.pending():
                     log.warning("no final stats from %s after %.0f s", missing, FINAL_WAIT)

@@ -85,8 +85,11 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """The arguments of ``ddvi fault``, for ``services.cli``."""
     p.add_argument("run", help="the run folder ddvi run prints, or the run's name under --output")
     p.add_argument("kind", choices=KINDS, help="what to inject")
-    p.add_argument("target", nargs="?", help="kill: a service (ctrl-<deputy>, nav-<deputy>); "
-                   "panel, bias: a deputy; link: see --to")  # fmt: skip
+    p.add_argument(
+        "target",
+        nargs="?",
+        help="kill: a service (ctrl-<deputy>, nav-<deputy>); panel, bias: a deputy; link: see --to",
+    )
     p.add_argument("--from", dest="publisher", help="link: publishing service(s), a glob")
     p.add_argument("--to", dest="subscriber", help="link: subscribing service(s), a glob")
     p.add_argument("--topic", default="*", help="link: topic glob (default: all but the clock)")
@@ -94,12 +97,27 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         unit = "s" if key in ("delay", "jitter") else "probability"
         p.add_argument(f"--{key}", type=float, default=0.0, help=f"link: {key} ({unit})")
     p.add_argument("--area-factor", type=float, help="panel: true area / nominal")
-    p.add_argument("--stuck-angle", type=float, metavar="DEG",
-                   help="panel: facet normal stuck at DEG (0-90) in body x-y")  # fmt: skip
-    p.add_argument("--position", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                   help="bias: Hill position bias, m")  # fmt: skip
-    p.add_argument("--velocity", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                   default=[0.0, 0.0, 0.0], help="bias: Hill velocity bias, m/s")  # fmt: skip
+    p.add_argument(
+        "--stuck-angle",
+        type=float,
+        metavar="DEG",
+        help="panel: facet normal stuck at DEG (0-90) in body x-y",
+    )
+    p.add_argument(
+        "--position",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="bias: Hill position bias, m",
+    )
+    p.add_argument(
+        "--velocity",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        default=[0.0, 0.0, 0.0],
+        help="bias: Hill velocity bias, m/s",
+    )
     p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
     p.add_argument("--hub", help="an insecure run's hub, when its run folder is not here")
     p.add_argument(
@@ -266,9 +284,13 @@ def _link_answerers(session: zenoh.Session, run: str, target: str) -> set[str]:
 
 
 def _publish_and_wait(
-    session: zenoh.Session, args: argparse.Namespace, run: str, target: str,
-    params: dict[str, Any], t: float,
-) -> int | None:  # fmt: skip
+    session: zenoh.Session,
+    args: argparse.Namespace,
+    run: str,
+    target: str,
+    params: dict[str, Any],
+    t: float,
+) -> int | None:
     """Publish the fault at simulation time ``t`` and print the answer of every service that
     acts on it (a link fault: each one its glob matches); its exit status (1 when one ignored
     or refused it, or did not answer), or None when no answer came within ``args.timeout``."""
@@ -294,8 +316,10 @@ def _publish_and_wait(
     if not answered:
         return None
     if missing := sorted(expected - set(answered)):
-        print(f"ddvi fault: no answer from {', '.join(missing)} within {args.timeout:g} s",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"ddvi fault: no answer from {', '.join(missing)} within {args.timeout:g} s",
+            file=sys.stderr,
+        )
         return 1
     return 0 if all(answered.values()) else 1
 
@@ -306,8 +330,11 @@ def _connect(stack: contextlib.ExitStack, bus: RunBus) -> zenoh.Session | None:
     try:
         return stack.enter_context(open_session(bus.settings()))
     except Exception as exc:  # zenoh.ZError: refused (credentials) or unreachable
-        print(f"ddvi fault: cannot connect to {bus.hub} ({error_text(exc)}); is run {bus.run!r} "
-              "running?", file=sys.stderr)  # fmt: skip
+        print(
+            f"ddvi fault: cannot connect to {bus.hub} ({error_text(exc)}); is run {bus.run!r} "
+            "running?",
+            file=sys.stderr,
+        )
         return None
 
 

@@ -164,14 +164,19 @@ def gains_figure(canvas: Canvas) -> None:
             # where they coincide (a nominal truth)
             if s.K_lqr.size > c:
                 refs.append(float(s.K_lqr.flat[c]))
-                ax.axhline(refs[-1], color=color, ls="--", lw=3.0, alpha=0.45,
-                           label=f"{s.deputy.name} nominal LQR")  # fmt: skip
+                ax.axhline(
+                    refs[-1],
+                    color=color,
+                    ls="--",
+                    lw=3.0,
+                    alpha=0.45,
+                    label=f"{s.deputy.name} nominal LQR",
+                )
             if s.K_true is not None and s.K_true.size > c:
                 same = s.K_lqr.size > c and np.isclose(s.K_true.flat[c], s.K_lqr.flat[c])
                 label = f"{s.deputy.name} true K*" + (" (= LQR)" if same else "")
                 refs.append(float(s.K_true.flat[c]))
-                ax.axhline(refs[-1], color="black", ls=":", lw=1.4, zorder=3,
-                           label=label)  # fmt: skip
+                ax.axhline(refs[-1], color="black", ls=":", lw=1.4, zorder=3, label=label)
         _show_references(ax, refs)
         name = K_NAMES[c] if c < len(K_NAMES) else str(c)
         unit = f" [{K_UNITS[c]}]" if c < len(K_UNITS) else ""

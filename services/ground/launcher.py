@@ -74,8 +74,9 @@ class Launcher:
         self.services = ServiceProcesses(dep, self.run, self.out, self.hub, self.port, quiet, live)
         self.quiet = quiet
         self.signals = lifecycle.StopSignals()
-        self.supervisor = Supervisor(dep, self.services, self.say,
-                                     lambda: self.signals.received is not None)  # fmt: skip
+        self.supervisor = Supervisor(
+            dep, self.services, self.say, lambda: self.signals.received is not None
+        )
 
     def say(self, text: str, error: bool = False) -> None:
         """Progress on stderr (not with --quiet); an error is always said."""
@@ -99,8 +100,11 @@ class Launcher:
         for warning in holding_warnings(self.dep):
             self.say(f"warning: {warning}")
         if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
-            self.say(f"network namespaces {missing} do not exist: run `ddvi netns up "
-                     f"{self.dep.path}` first (as root)", error=True)  # fmt: skip
+            self.say(
+                f"network namespaces {missing} do not exist: run `ddvi netns up "
+                f"{self.dep.path}` first (as root)",
+                error=True,
+            )
             return 1
         self.signals.install()
         try:
@@ -132,8 +136,11 @@ class Launcher:
             if made:
                 shutil.rmtree(self.out, ignore_errors=True)
             why = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else exc
-            self.say(f"cannot create the run folder {self.out} ({why}); choose "
-                     "another with --output or run.output", error=True)  # fmt: skip
+            self.say(
+                f"cannot create the run folder {self.out} ({why}); choose "
+                "another with --output or run.output",
+                error=True,
+            )
             return lifecycle.EXIT_USAGE
         return None
 
@@ -149,9 +156,12 @@ class Launcher:
                 first = error_text(exc)
                 # nothing ran: leave no run folder behind
                 shutil.rmtree(self.out, ignore_errors=True)
-                self.say(f"cannot open the bus (port {self.port}, connect "
-                         f"{self.dep.bus.connect}): {first}; is bus.port in use, or a "
-                         "bus.connect endpoint wrong?", error=True)  # fmt: skip
+                self.say(
+                    f"cannot open the bus (port {self.port}, connect "
+                    f"{self.dep.bus.connect}): {first}; is bus.port in use, or a "
+                    "bus.connect endpoint wrong?",
+                    error=True,
+                )
                 return lifecycle.EXIT_USAGE
             return self._fly(session, started)
         return lifecycle.EXIT_FAILED  # not reached (mypy: ExitStack may swallow)
@@ -160,9 +170,13 @@ class Launcher:
         """Wait for the services' liveliness, watching them: None when all are alive, else
         the exit status (a crash is said at once, with the service's last log lines)."""
         how, what = lifecycle.await_alive(
-            session, self.run, names, self.dep.run.startup_timeout, self.services.exited,
+            session,
+            self.run,
+            names,
+            self.dep.run.startup_timeout,
+            self.services.exited,
             lambda: self.signals.received is not None,
-        )  # fmt: skip
+        )
         if how == "alive":
             return None
         if how == "stopped":
@@ -171,11 +185,16 @@ class Launcher:
             name, rc = what
             log = self.out / "logs" / f"{name}.log"
             tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
-            self.say(f"{name} exited with status {rc} while starting; last lines of {log}:"
-                     f"{tail or ' (empty)'}", error=True)  # fmt: skip
+            self.say(
+                f"{name} exited with status {rc} while starting; last lines of {log}:"
+                f"{tail or ' (empty)'}",
+                error=True,
+            )
             return lifecycle.EXIT_FAILED
-        self.say(f"not alive after {self.dep.run.startup_timeout} s: {what}; "
-                 f"see {self.out / 'logs'}", error=True)  # fmt: skip
+        self.say(
+            f"not alive after {self.dep.run.startup_timeout} s: {what}; see {self.out / 'logs'}",
+            error=True,
+        )
         return lifecycle.EXIT_FAILED
 
     def _fly(self, session: Any, started: float) -> int:
@@ -185,8 +204,10 @@ class Launcher:
         # monitor (services.flight.runtime), so that the recording has everything from the
         # first message on, and the environment flies once it sees every other service alive
         if self.live:
-            self.say(f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
-                     "WebSocket; docs/live.md)")  # fmt: skip
+            self.say(
+                f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
+                "WebSocket; docs/live.md)"
+            )
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
@@ -206,11 +227,17 @@ class Launcher:
         if (signum := self.signals.received) is None:
             return status
         report = self.out / "report.md"
-        where = f"partial report in {self.out}" if report.is_file() else (
-            f"no report; see {self.out / 'logs' / 'monitor.log'}")  # fmt: skip
+        where = (
+            f"partial report in {self.out}"
+            if report.is_file()
+            else (f"no report; see {self.out / 'logs' / 'monitor.log'}")
+        )
         code = lifecycle.exit_for_signal(signum)
-        self.say(f"stopped by {signal.Signals(signum).name}: every service stopped; {where} "
-                 f"(exit status {code})", error=True)  # fmt: skip
+        self.say(
+            f"stopped by {signal.Signals(signum).name}: every service stopped; {where} "
+            f"(exit status {code})",
+            error=True,
+        )
         return code
 
     def _hub_settings(self) -> BusSettings:
@@ -266,8 +293,10 @@ class Launcher:
             from services.ground.recover import recover
 
             n = recover(self.out).messages
-            self.say(f"report recovered from the recording ({n} messages); see {self.out}",
-                     error=True)  # fmt: skip
+            self.say(
+                f"report recovered from the recording ({n} messages); see {self.out}", error=True
+            )
         except Exception as exc:  # a recovery that fails is said; the run has failed anyway
-            self.say(f"could not recover the report ({exc}); try `ddvi report {self.out}`",
-                     error=True)  # fmt: skip
+            self.say(
+                f"could not recover the report ({exc}); try `ddvi report {self.out}`", error=True
+            )

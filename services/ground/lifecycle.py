@@ -180,8 +180,10 @@ def resource_problems(dep: Any) -> tuple[list[str], str | None]:
     cores = os.cpu_count() or 1
     said = f"{processes} processes, about {need / 1e9:.1f} GB"
     if need > available:
-        return [], (f"this deployment needs {said}; {available / 1e9:.1f} GB are available: "
-                    "run fewer deputies (or split them into several runs)")  # fmt: skip
+        return [], (
+            f"this deployment needs {said}; {available / 1e9:.1f} GB are available: "
+            "run fewer deputies (or split them into several runs)"
+        )
     warnings = []
     if need > available / 2:
         warnings.append(f"{said} of the {available / 1e9:.1f} GB available")

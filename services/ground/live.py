@@ -172,8 +172,15 @@ class LiveServer:
     def _gains(self, sc: str, msg: Message) -> None:
         K_star, L_star = self.references.get(sc, ([], []))
         b = msg.body
-        data = {"sc": sc, "t": msg.t, "source": b["source"], "K": b["K"].ravel(),
-                "L": b["L"].ravel(), "K_star": K_star, "L_star": L_star}  # fmt: skip
+        data = {
+            "sc": sc,
+            "t": msg.t,
+            "source": b["source"],
+            "K": b["K"].ravel(),
+            "L": b["L"].ravel(),
+            "K_star": K_star,
+            "L_star": L_star,
+        }
         topic = live_gains_topic(sc)
         self._send(topic, "ddvi.live_gains", LIVE_GAINS_SCHEMA, data, ns(msg.t))
 

@@ -43,8 +43,10 @@ def parse_address(text: str) -> LiveAddress:
     except ValueError:
         number = 0
     if not host or not 1 <= number <= 65535:
-        raise LiveError(f"--live {text!r}: give HOST:PORT, e.g. {LIVE_DEFAULT} (a deployment "
-                        "goes before --live)")  # fmt: skip
+        raise LiveError(
+            f"--live {text!r}: give HOST:PORT, e.g. {LIVE_DEFAULT} (a deployment "
+            "goes before --live)"
+        )
     return LiveAddress(host, number)
 
 
@@ -69,8 +71,9 @@ def check_live(text: str) -> LiveAddress:
         try:
             s.bind((address.host, address.port))
         except OSError as exc:
-            raise LiveError(f"--live {address}: cannot listen there ({exc.strerror}); give "
-                            "another HOST:PORT") from exc  # fmt: skip
+            raise LiveError(
+                f"--live {address}: cannot listen there ({exc.strerror}); give another HOST:PORT"
+            ) from exc
     return address
 
 
@@ -82,5 +85,7 @@ def exposure_warning(address: LiveAddress) -> str | None:
     except ValueError:
         if address.host == "localhost":
             return None
-    return (f"the live view on {address} serves every message of the run, unauthenticated, to "
-            "anyone who can reach it")  # fmt: skip
+    return (
+        f"the live view on {address} serves every message of the run, unauthenticated, to "
+        "anyone who can reach it"
+    )

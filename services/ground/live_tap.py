@@ -90,17 +90,19 @@ def serve_live(args: argparse.Namespace) -> int:
         try:
             session = stack.enter_context(open_session(bus.settings()))
         except zenoh.ZError as exc:
-            print(f"ddvi monitor: cannot connect to {bus.hub} ({error_text(exc)})",
-                  file=sys.stderr)  # fmt: skip
+            print(f"ddvi monitor: cannot connect to {bus.hub} ({error_text(exc)})", file=sys.stderr)
             return 1
         if dep is not None:
             server = live_server(address, dep, bus.run, liveliness=False)
         else:  # the topics are advertised as they come, and K* is not known
             server = LiveServer(address, f"ddvi {bus.run}", {}, {})
         stack.callback(server.close)
-        print(f"ddvi monitor: live view of {bus.run} on {address.url} (Foxglove: Open "
-              "connection, Foxglove WebSocket; docs/live.md); Ctrl-C to stop",
-              file=sys.stderr, flush=True)  # fmt: skip
+        print(
+            f"ddvi monitor: live view of {bus.run} on {address.url} (Foxglove: Open "
+            "connection, Foxglove WebSocket; docs/live.md); Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
         limits = (int(args.count or 0), float(args.seconds or 0.0))
         _serve(session, keyexpr, f"ddvi/{bus.run}/", server, *limits)
     return 0

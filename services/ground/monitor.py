@@ -207,8 +207,9 @@ class Monitor:
         if msg.schema == "clock" and msg.src != TIME_MASTER:
             n = self.counters["refused.clock"] = self.counters["refused.clock"] + 1
             if n <= 10 or n % 1000 == 0:
-                log.warning("refused a clock from %r (only %s keeps time; #%d)", msg.src,
-                            TIME_MASTER, n)  # fmt: skip
+                log.warning(
+                    "refused a clock from %r (only %s keeps time; #%d)", msg.src, TIME_MASTER, n
+                )
             self.counters["recorded"] = rec.messages
             return
         if not self.data.refusals.accepts(topic, msg):  # its topic does not let it say that
@@ -365,8 +366,10 @@ def _close(subs: tuple[Any, Any], mon: Monitor, inbox: Inbox, status: Status | N
             break
         if time.monotonic() > deadline:  # a backlog: the recording is closed whole instead
             mon.counters["unrecorded"] = mon.counters.get("unrecorded", 0) + 1 + inbox.qsize()
-            log.error("%d queued samples not recorded: closing the recording in time",
-                      mon.counters["unrecorded"])  # fmt: skip
+            log.error(
+                "%d queued samples not recorded: closing the recording in time",
+                mon.counters["unrecorded"],
+            )
             break
         mon.handle(item)
     if status is not None:

@@ -150,16 +150,20 @@ def outcome_lines(out: Mapping[str, Any]) -> list[str]:
     else:
         lines.append("- commands: none refused, stale, missing or late")
     if found := out.get("flooded"):
-        lines.append(f"- **flooded by {flood_text(found)}**: past its rate budget, dropped "
-                     "unread (ddvi run exits 3)")  # fmt: skip
+        lines.append(
+            f"- **flooded by {flood_text(found)}**: past its rate budget, dropped "
+            "unread (ddvi run exits 3)"
+        )
     health = out.get("health", {})
     if safe := health.get("safe_attitude_steps"):
         said = ", ".join(f"{name} {n}" for name, n in sorted(safe.items()))
         lines.append(f"- **safe attitude flown** (navigation too old): {said} steps")
     if health.get("paused_steps"):
-        lines.append(f"- lock-step paused {health['paused_steps']} times for a silent "
-                     "controller or recorder (run.command_deadline); the mission waited for "
-                     "it")  # fmt: skip
+        lines.append(
+            f"- lock-step paused {health['paused_steps']} times for a silent "
+            "controller or recorder (run.command_deadline); the mission waited for "
+            "it"
+        )
     if out.get("refused_clocks"):
         lines.append(
             f"- **{out['refused_clocks']} clock messages refused**: not from the environment "

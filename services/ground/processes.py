@@ -43,8 +43,16 @@ class ServiceProcesses:
     launcher's address there, on ``port``), the monitor serving the live view on ``live``
     when given."""
 
-    def __init__(self, dep: Deployment, run: str, out: Path, hub: str, port: int,
-                 quiet: bool, live: str | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        dep: Deployment,
+        run: str,
+        out: Path,
+        hub: str,
+        port: int,
+        quiet: bool,
+        live: str | None = None,
+    ) -> None:
         self.dep, self.run, self.out = dep, run, out
         self.hub, self.port, self.quiet, self.live = hub, port, quiet, live
         self.procs: dict[str, Process] = {}

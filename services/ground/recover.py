@@ -120,8 +120,9 @@ def _write(records: Records, path: Path) -> None:
         sid = {k: w.register_schema(s.name, s.encoding, s.data) for k, s in records.schemas.items()}
         cid = {}
         for k, c in records.channels.items():
-            cid[k] = w.register_channel(c.topic, c.message_encoding, sid.get(c.schema_id, 0),
-                                        dict(c.metadata))  # fmt: skip
+            cid[k] = w.register_channel(
+                c.topic, c.message_encoding, sid.get(c.schema_id, 0), dict(c.metadata)
+            )
         for m in records.messages:
             if m.channel_id in cid:
                 w.add_message(cid[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
@@ -186,8 +187,11 @@ def report_command(args: argparse.Namespace) -> int:
     is no run folder."""
     folder = _folder(args.run)
     if folder is None:
-        print(f"ddvi report: {args.run}: no run folder with a {RECORDING} (give the folder "
-              "ddvi run printed)", file=sys.stderr)  # fmt: skip
+        print(
+            f"ddvi report: {args.run}: no run folder with a {RECORDING} (give the folder "
+            "ddvi run printed)",
+            file=sys.stderr,
+        )
         return 2
     if not (folder / RECORDING).is_file():  # a repair interrupted: start from the original
         os.replace(folder / TRUNCATED, folder / RECORDING)
@@ -202,7 +206,10 @@ def report_command(args: argparse.Namespace) -> int:
     how = "complete" if got.complete else f"cut short; repaired, the original is {TRUNCATED}"
     if got.unrepaired:
         how = f"cut short; not repaired: {got.unrepaired}"
-    print(f"ddvi report: {got.messages} messages read from {folder / RECORDING} ({how}); "
-          f"completed: {got.summary['completed']}", file=sys.stderr)  # fmt: skip
+    print(
+        f"ddvi report: {got.messages} messages read from {folder / RECORDING} ({how}); "
+        f"completed: {got.summary['completed']}",
+        file=sys.stderr,
+    )
     print(json.dumps({"messages": got.messages, "complete": got.complete}))
     return 0

@@ -52,8 +52,11 @@ def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
         body, version = upgrade(data["schema"], data["version"], data["body"])
         spec = SCHEMAS.get(data["schema"])
         if spec is not None and isinstance(body, dict) and version != spec.version:
-            raise MessageError("version", f"{spec.name}: recorded at version {version}, which "
-                               f"this version ({spec.version}) cannot read")  # fmt: skip
+            raise MessageError(
+                "version",
+                f"{spec.name}: recorded at version {version}, which "
+                f"this version ({spec.version}) cannot read",
+            )
         payload = encode(
             data["schema"],
             body,

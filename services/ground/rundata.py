@@ -178,10 +178,14 @@ class RunData:
         elif msg.schema == "gains":
             self.sc(b["sc"]).gains.append(
                 GainRecord(
-                    msg.t, b["K"].tolist(), b["L"].tolist(), b["source"], b["iteration"],
+                    msg.t,
+                    b["K"].tolist(),
+                    b["L"].tolist(),
+                    b["source"],
+                    b["iteration"],
                     b["converged"],
                 )
-            )  # fmt: skip
+            )
         elif msg.schema == "status":
             self.sc(b["sc"]).status.append(StatusRecord(msg.t, dict(b)))
         elif msg.schema == "log" and b["text"]:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ddvi_core.lqr import relative_gain_error
 from services.config import Deployment, Deputy
 from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
 
@@ -56,6 +57,77 @@ METRICS = (
 NOTE_LENGTH = 160  # characters of a learner's last log line kept as a note
 
 
+@dataclass(frozen=True)
+class Success:
+    """What a table counts as a deputy's success, named by the table that uses it: each bound
+    given must hold in a run that completed.
+
+    Parameters
+    ----------
+    name : what the table says it counts, e.g. "learned within 10 % of K*".
+    gain_below : a learned gain with |K - K*| / |K*| below this.
+    final_below_m : a final along-track error below this, m.
+    lqr_factor, floor_m : a final along-track error at most max(lqr_factor x the LQR deputy's
+        of the same run, floor_m), m.
+    """
+
+    name: str
+    gain_below: float | None = None
+    final_below_m: float | None = None
+    lqr_factor: float | None = None
+    floor_m: float = 0.0
+
+    def met(
+        self,
+        *,
+        completed: bool,
+        final_m: float | None = None,
+        learned: bool | None = None,
+        gain_error: float | None = None,
+        lqr_final_m: float | None = None,
+    ) -> bool:
+        """Whether a deputy's figures (``deputy_metrics``'s: an LQR deputy has ``learned``
+        None) meet every bound given; a figure a bound needs that is missing fails it."""
+        if not completed:
+            return False
+        if self.gain_below is not None and not (
+            learned and gain_error is not None and gain_error < self.gain_below
+        ):
+            return False
+        if self.final_below_m is not None and not (
+            final_m is not None and final_m < self.final_below_m
+        ):
+            return False
+        if self.lqr_factor is None:
+            return True
+        if final_m is None or lqr_final_m is None:
+            return False
+        return final_m <= max(self.lqr_factor * lqr_final_m, self.floor_m)
+
+    def row_met(self, row: dict[str, Any]) -> bool:
+        """``met`` of a row of :data:`METRICS` (a figure it lacks is missing)."""
+        return self.met(
+            completed=bool(row.get("completed")),
+            final_m=row.get("final_along_track_error_m"),
+            learned=row.get("learned"),
+            gain_error=row.get("gain_error"),
+        )
+
+
+LEARNED_WITHIN_10_PERCENT = Success("learned within 10 % of K*", gain_below=0.1)
+"""The sweeps' success: the controller switched to learned gains within 10 % of the optimal
+gain of the truth's linear model; a learner can also converge to a wrong gain."""
+
+AS_GOOD_AS_LQR = Success("final error within max(2x the LQR's, 10 m)", lqr_factor=2.0, floor_m=10.0)
+"""The twin benchmark's success: a final error no worse than twice the LQR deputy's of the same
+draw, or 10 m, whichever is larger."""
+
+
+def final_error_below(metres: float) -> Success:
+    """A campaign's success: a final along-track error below its ``success_threshold``."""
+    return Success(f"final error < {metres:g} m", final_below_m=metres)
+
+
 @dataclass
 class DeputyOutcome:
     """What one run produced for one deputy: sample times t (s) and |y - y_ref| at them (m),
@@ -71,16 +143,15 @@ class DeputyOutcome:
     completed: bool = True
 
 
-def relative_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
+def scored_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
     """|K - K_ref| / |K_ref| (Frobenius norms); None without K or a reference, or with a shape
     or zero reference that makes no sense of it."""
     if K is None or K_ref is None:
         return None
     K = np.asarray(K, float)
-    den = float(np.linalg.norm(K_ref))
-    if den == 0.0 or K.shape != K_ref.shape:
+    if K.shape != K_ref.shape or not np.any(K_ref) or not np.all(np.isfinite(K)):
         return None
-    return float(np.linalg.norm(K - K_ref) / den)
+    return relative_gain_error(K, K_ref)
 
 
 def reference_gains(dep: Deployment, deputy: Deputy) -> tuple[FloatArray | None, FloatArray | None]:
@@ -147,8 +218,8 @@ def deputy_metrics(
         "learned_at_orbits": None
         if lqr or not outcome.learned_at
         else float(outcome.learned_at[0] / period),
-        "gain_error": relative_gain_error(outcome.K, K_true) if scored else None,
-        "gain_error_vs_lqr": relative_gain_error(outcome.K, K_lqr) if learned else None,
+        "gain_error": scored_gain_error(outcome.K, K_true) if scored else None,
+        "gain_error_vs_lqr": scored_gain_error(outcome.K, K_lqr) if learned else None,
         "can_hold": not cannot_hold,
         "note": "; ".join(notes) or None,
     }

@@ -80,8 +80,10 @@ class Status:
         along-track error, phase, x, sigma3 and a learner's data; with more, each one's error
         alone (and a learner's phase), so that the line stays short."""
         d = self.data
-        head = (f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
-                f"({d.sim_t / d.period:.2f} of {d.duration / d.period:.2f} orbits)")  # fmt: skip
+        head = (
+            f"monitor: {100 * d.sim_t / d.duration:3.0f}% t={d.sim_t:.0f} s "
+            f"({d.sim_t / d.period:.2f} of {d.duration / d.period:.2f} orbits)"
+        )
         if len(d.dep.deputy) > COMPACT_ABOVE:
             parts = [f"{head} y-y_ref"]
             for dep in d.dep.deputy:
@@ -99,8 +101,10 @@ class Status:
             )
             part = f"{dep.name}: y-y_ref={ey} m {s.get('phase', '-')} x={x} m sigma3={sigma3}"
             if _learner(s):
-                part += (f" samples={s['samples']} intervals={s['intervals']} "
-                         f"rank={s['rank']}/{s['rank_needed']}")  # fmt: skip
+                part += (
+                    f" samples={s['samples']} intervals={s['intervals']} "
+                    f"rank={s['rank']}/{s['rank_needed']}"
+                )
             parts.append(part)
         return " | ".join(parts)
 

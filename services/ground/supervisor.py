@@ -89,8 +89,13 @@ class Supervisor:
     stopping : whether a stop signal has come.
     """
 
-    def __init__(self, dep: Deployment, services: ServiceProcesses, say: Callable[..., None],
-                 stopping: Callable[[], bool]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        dep: Deployment,
+        services: ServiceProcesses,
+        say: Callable[..., None],
+        stopping: Callable[[], bool],
+    ) -> None:
         self.dep, self.services = dep, services
         self.say, self.stopping = say, stopping
         self.restarts: dict[str, int] = {}
@@ -133,8 +138,11 @@ class Supervisor:
             return self.hung("environment", bus, sim_t)
         if env.returncode != 0:
             log = self.services.out / "logs" / "environment.log"
-            self.say(f"environment exited with status {env.returncode}: "
-                     f"{lifecycle.log_reason(log)} (log: {log})", error=True)  # fmt: skip
+            self.say(
+                f"environment exited with status {env.returncode}: "
+                f"{lifecycle.log_reason(log)} (log: {log})",
+                error=True,
+            )
             return 1
         return None
 
@@ -151,13 +159,21 @@ class Supervisor:
             if policy.policy == "on-failure" and done < policy.max_restarts:
                 self.restarts[name] = done + 1
                 self.services.start(name, join=True)
-                self.event(bus, "warning", f"{name} exited with status {rc}; restarted "
-                           f"({done + 1} of {policy.max_restarts})", sim_t)  # fmt: skip
+                self.event(
+                    bus,
+                    "warning",
+                    f"{name} exited with status {rc}; restarted "
+                    f"({done + 1} of {policy.max_restarts})",
+                    sim_t,
+                )
                 continue
             log = self.services.out / "logs" / f"{name}.log"
             tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
-            self.say(f"{name} exited with status {rc} before the mission ended; last "
-                     f"lines of {log}:{tail or ' (empty)'}", error=True)  # fmt: skip
+            self.say(
+                f"{name} exited with status {rc} before the mission ended; last "
+                f"lines of {log}:{tail or ' (empty)'}",
+                error=True,
+            )
             self.monitor_died = name == "monitor"
             return 1
         return None

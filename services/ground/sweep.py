@@ -50,6 +50,7 @@ from services.config import (
     write_deployment,
 )
 from services.ground.scoring import (
+    LEARNED_WITHIN_10_PERCENT,
     deputy_metrics,
     failed_metrics,
     holding_notes,
@@ -57,7 +58,6 @@ from services.ground.scoring import (
 )
 from services.ground.sweep_table import (
     POINT,
-    SUCCESS,
     UNITS,
     largest_learning_value,
     markdown_table,
@@ -218,9 +218,14 @@ def unlearned_points(
         for d in dep.deputy:
             at = d.learning.learn_at_orbits
             if d.controller != "lqr" and at >= dep.run.orbits:
-                out.append((point, f"deputy {d.name!r} learns at orbit {at:g} but the run ends "
-                            f"at orbit {dep.run.orbits:g}: it will not learn; give --orbits "
-                            f"above {at:g}"))  # fmt: skip
+                out.append(
+                    (
+                        point,
+                        f"deputy {d.name!r} learns at orbit {at:g} but the run ends "
+                        f"at orbit {dep.run.orbits:g}: it will not learn; give --orbits "
+                        f"above {at:g}",
+                    )
+                )
     return out
 
 
@@ -279,8 +284,10 @@ def _launch(path: Path, folder: Path, quiet: bool) -> dict[str, Any] | None:
     status = launcher.execute()
     summary_path = launcher.out / "summary.json"
     if not summary_path.is_file():
-        print(f"ddvi sweep: {path.stem}: no report (status {status}); see "
-              f"{launcher.out / 'logs'}", file=sys.stderr)  # fmt: skip
+        print(
+            f"ddvi sweep: {path.stem}: no report (status {status}); see {launcher.out / 'logs'}",
+            file=sys.stderr,
+        )
         return None
     return json.loads(summary_path.read_text())
 
@@ -306,14 +313,18 @@ def sweep(
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     folder = Path(output or base.run.output) / f"sweep-{kind}-{base.run.name}-{stamp}"
     if kind == "noise":
-        print(f"ddvi sweep: noise: each value is the navigation position noise (m, 1 sigma per "
-              f"axis); velocity noise {VELOCITY_NOISE_RATIO:g} (m/s)/m times it is added too",
-              file=sys.stderr, flush=True)  # fmt: skip
+        print(
+            f"ddvi sweep: noise: each value is the navigation position noise (m, 1 sigma per "
+            f"axis); velocity noise {VELOCITY_NOISE_RATIO:g} (m/s)/m times it is added too",
+            file=sys.stderr,
+            flush=True,
+        )
     # up front: which points fly a deputy that no attitude lets hold its slot, or that ends
     # before a learner learns
     for point, why in infeasible_points(runs) + unlearned_points(runs):
-        print(f"ddvi sweep: {_point_text(kind, point)}: warning: {why}", file=sys.stderr,
-              flush=True)  # fmt: skip
+        print(
+            f"ddvi sweep: {_point_text(kind, point)}: warning: {why}", file=sys.stderr, flush=True
+        )
     rows: list[dict[str, Any]] = []
     for point, table, stem in runs:
         path = write_deployment(table, folder / "deployments", stem)
@@ -373,9 +384,15 @@ def sweep_command(args: argparse.Namespace) -> int:
     input."""
     try:
         folder, rows = sweep(
-            args.kind, args.deployment, args.values, args.output, args.orbits,
-            mismatches=args.mismatch, in_process=args.in_process, nav_filter=args.nav_filter,
-        )  # fmt: skip
+            args.kind,
+            args.deployment,
+            args.values,
+            args.output,
+            args.orbits,
+            mismatches=args.mismatch,
+            in_process=args.in_process,
+            nav_filter=args.nav_filter,
+        )
     except (DeploymentError, ValueError) as exc:
         print(f"ddvi sweep: {exc}", file=sys.stderr)
         return 2
@@ -386,12 +403,11 @@ def sweep_command(args: argparse.Namespace) -> int:
     if args.kind in ("delay", "loss") and any(r["controller"] != "lqr" for r in rows):
         best = largest_learning_value(rows)
         unit = UNITS[args.kind]
+        criterion = LEARNED_WITHIN_10_PERCENT.name
         print(
-            f"Every learner learned within {SUCCESS:.0%} of the true K* at every {args.kind} "
-            f"up to {best:g} {unit}"
+            f"Every learner {criterion} at every {args.kind} up to {best:g} {unit}"
             if best is not None
-            else f"A learner did not learn within {SUCCESS:.0%} of the true K* at the "
-            f"smallest {args.kind}"
+            else f"A learner was not {criterion} at the smallest {args.kind}"
         )
     print(folder)
     runs = len({tuple(r[c] for c in POINT[args.kind]) for r in rows})

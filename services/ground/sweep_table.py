@@ -15,7 +15,7 @@ import csv
 from pathlib import Path
 from typing import Any
 
-from services.ground.scoring import table_cell
+from services.ground.scoring import LEARNED_WITHIN_10_PERCENT, METRICS, table_cell
 
 UNITS = {"delay": "s", "loss": "probability", "noise": "m"}
 """Sweep kind -> the unit of its swept value."""
@@ -29,13 +29,10 @@ RESULTS = [
     "controller",
     "completed",
     "can_hold",
-    "final_along_track_error_m",
-    "max_along_track_error_last_orbit_m",
-    "learned",
-    "learned_at_orbits",
-    "gain_error",
-    "gain_error_vs_lqr",
+    *(m for m in METRICS if m not in ("completed", "can_hold", "note")),
 ]
+"""A row's deputy and its metrics (``services.ground.scoring.METRICS``; the note last, in noise
+sweeps)."""
 LINKS = ["dropped", "delayed", "late", "missing"]
 
 HEADERS = {
@@ -75,25 +72,14 @@ def columns(kind: str) -> list[str]:
     return POINT[kind] + RESULTS + (["note"] if kind == "noise" else LINKS)
 
 
-SUCCESS = 0.1
-"""Learning succeeded: the controller switched to learned gains within 10% of the optimal gain
-of the truth's linear model (|K - K*|/|K*| < SUCCESS); a learner can also converge to a wrong
-gain."""
-
-
-def succeeded(row: dict[str, Any]) -> bool:
-    """A row whose run completed with learned gains within ``SUCCESS`` of the true K*."""
-    err = row["gain_error"]
-    return bool(row["learned"] and row["completed"] and err is not None and err < SUCCESS)
-
-
 def largest_learning_value(rows: list[dict[str, Any]]) -> float | None:
-    """The largest value of a link sweep at which learning succeeded for every learning
-    deputy, all smaller values included (None if it failed at the first)."""
+    """The largest value of a link sweep at which every learning deputy learned within 10 % of
+    K* (``LEARNED_WITHIN_10_PERCENT``), all smaller values included (None if it failed at the
+    first)."""
     best = None
     for value in sorted({r["value"] for r in rows}):
         learners = [r for r in rows if r["value"] == value and r["controller"] != "lqr"]
-        if not learners or not all(succeeded(r) for r in learners):
+        if not learners or not all(LEARNED_WITHIN_10_PERCENT.row_met(r) for r in learners):
             break
         best = value
     return best

@@ -121,8 +121,10 @@ def run_keyexpr(run: str, pattern: str | None) -> str:
     if parts[0] == "ddvi" and len(parts) > 1:
         named = parts[1]
         if named not in ("*", "**", run) and run != "*":
-            raise ValueError(f"{pattern!r} names run {named!r}, not this run ({run!r}): give "
-                             "a topic pattern such as 'ctrl/*/status'")  # fmt: skip
+            raise ValueError(
+                f"{pattern!r} names run {named!r}, not this run ({run!r}): give "
+                "a topic pattern such as 'ctrl/*/status'"
+            )
         if named != "**":
             run = named if run == "*" else run
         parts = (["**"] if named == "**" else []) + parts[2:]
@@ -130,8 +132,10 @@ def run_keyexpr(run: str, pattern: str | None) -> str:
     try:
         key = zenoh.KeyExpr(topics)
     except zenoh.ZError:
-        raise ValueError(f"{pattern!r} is not a key expression (segments separated by /, "
-                         "* for one segment, ** for any number)") from None  # fmt: skip
+        raise ValueError(
+            f"{pattern!r} is not a key expression (segments separated by /, "
+            "* for one segment, ** for any number)"
+        ) from None
     known = topic_patterns()
     if not any(key.intersects(zenoh.KeyExpr(t)) for t in known):
         raise ValueError(f"{pattern!r} matches no topic; the topics are {', '.join(known)}")
@@ -184,8 +188,10 @@ def _monitor(args: argparse.Namespace, out: Callable[[str], None] | None) -> int
         try:
             session = stack.enter_context(open_session(settings))
         except zenoh.ZError as exc:
-            print(f"ddvi monitor: cannot connect to {settings.connect[0]} ({error_text(exc)})",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"ddvi monitor: cannot connect to {settings.connect[0]} ({error_text(exc)})",
+                file=sys.stderr,
+            )
             return 1
         _print_samples(session, keyexpr, emit, int(args.count or 0), float(args.seconds or 0.0))
     return 0

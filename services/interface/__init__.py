@@ -4,7 +4,8 @@ them on the wire.
 
 Modules: ``fields`` (field kinds and ``MessageError``), ``messages`` (the catalogue
 ``SCHEMAS`` and the header), ``codec`` (encode, decode, batches), ``topics`` (topic names,
-``TOPIC_SCHEMAS``, the ``TOPOLOGY`` table), ``reference`` (writes ``docs/interface.md``).
+``TOPIC_SCHEMAS``, the ``TOPOLOGY`` table), ``links`` (a link's impairments and the messages they
+apply to, as a deployment declares them), ``reference`` (writes ``docs/interface.md``).
 
 May import: the standard library, numpy, msgpack, msgspec. Nothing else of ``services``.
 """

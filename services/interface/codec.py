@@ -201,9 +201,14 @@ def decode(payload: bytes, expected: str | Collection[str] | None = None) -> Mes
     if message is not None:
         return message
     raw = _unpack(
-        payload, "message", strict_map_key=True, max_str_len=size, max_bin_len=0,
-        max_array_len=size, max_map_len=size,
-    )  # fmt: skip
+        payload,
+        "message",
+        strict_map_key=True,
+        max_str_len=size,
+        max_bin_len=0,
+        max_array_len=size,
+        max_map_len=size,
+    )
     if not isinstance(raw, dict):
         raise MessageError("malformed", f"expected a msgpack map, got {type_name(raw)}")
     keys = set(raw)

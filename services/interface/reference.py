@@ -106,10 +106,16 @@ def _identity(pairs: tuple[tuple[str, str], ...]) -> str:
 
 def _topics_section() -> list[str]:
     rows = [
-        (f"`{r.topic}`", f"[`{r.schema}`](#{r.schema})", _code(r.publishers),
-         _code(r.subscribers), _identity(r.identity), r.rate)
+        (
+            f"`{r.topic}`",
+            f"[`{r.schema}`](#{r.schema})",
+            _code(r.publishers),
+            _code(r.subscribers),
+            _identity(r.identity),
+            r.rate,
+        )
         for r in TOPOLOGY
-    ]  # fmt: skip
+    ]
     return [
         "## Topics",
         "",

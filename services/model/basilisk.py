@@ -123,9 +123,12 @@ class BasiliskTruth:
         sc.hub.mHub = mass
         # The attitude is prescribed, so the inertia does not act; a 10x20x30 cm box (6U).
         sc.hub.IHubPntBc_B = np.diag(
-            [mass / 12 * (0.2**2 + 0.3**2), mass / 12 * (0.1**2 + 0.3**2),
-             mass / 12 * (0.1**2 + 0.2**2)]
-        ).tolist()  # fmt: skip
+            [
+                mass / 12 * (0.2**2 + 0.3**2),
+                mass / 12 * (0.1**2 + 0.3**2),
+                mass / 12 * (0.1**2 + 0.2**2),
+            ]
+        ).tolist()
         sc.hub.r_CN_NInit = self._state[i, :3].tolist()
         sc.hub.v_CN_NInit = self._state[i, 3:].tolist()
         gravity.addBodiesTo(sc)

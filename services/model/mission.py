@@ -173,9 +173,11 @@ def initial_states(dep: Deployment) -> NDArray[np.float64]:
 
 
 def holding_margin(
-    dep: Deployment, deputy: Deputy, area_factor: float | None = None,
+    dep: Deployment,
+    deputy: Deputy,
+    area_factor: float | None = None,
     normal_angle: float | None = None,
-) -> float:  # fmt: skip
+) -> float:
     """How far the deputy's truth drag can be raised above the chief's, as a fraction of the
     chief's: max over |sigma3| <= limit of f A sin(alpha_d + phi) / (A sin alpha) - 1, with
     phi = 4 atan(sigma3) (the facet geometry of ``ddvi_core.models.drag_sensitivity``), f the

@@ -13,9 +13,16 @@ from benchmarks import run as bench
 
 
 def _row(metric: str, ratio: float, target: str) -> dict:
-    return {"benchmark": "fake", "metric": metric, "unit": "s", "project": ratio,
-            "baseline": 1.0, "baseline_name": "plain [bold]", "cost_ratio": ratio,
-            "target": target}  # fmt: skip
+    return {
+        "benchmark": "fake",
+        "metric": metric,
+        "unit": "s",
+        "project": ratio,
+        "baseline": 1.0,
+        "baseline_name": "plain [bold]",
+        "cost_ratio": ratio,
+        "target": target,
+    }
 
 
 ROWS = [

@@ -145,8 +145,12 @@ def test_swarm_rows_compare_a_deputy_orbit_with_the_four_deputy_swarm() -> None:
     from benchmarks.mission import _swarm_rows
 
     def run(loop: float, cpu: float, pss: float, messages: int) -> dict:
-        return {"loop_s": loop, "cpu_s": cpu, "pss_bytes": pss,
-                "summary": {"messages": {"recorded": messages}}}  # fmt: skip
+        return {
+            "loop_s": loop,
+            "cpu_s": cpu,
+            "pss_bytes": pss,
+            "summary": {"messages": {"recorded": messages}},
+        }
 
     results = {
         (1, "lqr"): (run(1.0, 4.0, 300e6, 1000), run(0.5, 1.0, 80e6, 0)),

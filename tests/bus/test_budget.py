@@ -63,8 +63,9 @@ def test_a_flooded_key_is_dropped_unread_counted_and_told(
     lost: queue.Queue[str] = queue.Queue()
     budget = budget_for(f"ddvi/{run}/", 10.0, 60.0, 10)
     with Bus(hub, run, "ctrl-deputy1", budget=budget) as rx, Bus(svc, run, "nav-deputy1") as tx:
-        rx.subscribe("nav/deputy1/state", queue_handler(inbox), expected_schema="nav",
-                     lost=lost.put)  # fmt: skip
+        rx.subscribe(
+            "nav/deputy1/state", queue_handler(inbox), expected_schema="nav", lost=lost.put
+        )
         connect(tx, inbox, "nav/deputy1/state")
         for i in range(1000):  # far past the burst, at one simulated time
             tx.publish("nav/deputy1/state", "nav", nav_body(i), t=0.0)

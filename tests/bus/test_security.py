@@ -54,12 +54,18 @@ def test_access_control_gives_each_user_its_topics_only() -> None:
     acl = access_control(RUN, USERS)
     assert acl["enabled"] and acl["default_permission"] == "deny"
     p = f"ddvi/{RUN}/"
-    assert sorted(_puts(acl, "nav-lqr")) == [p + "log/nav-lqr", p + "nav/lqr/state",
-                                             p + "stats/nav-lqr"]  # fmt: skip
+    assert sorted(_puts(acl, "nav-lqr")) == [
+        p + "log/nav-lqr",
+        p + "nav/lqr/state",
+        p + "stats/nav-lqr",
+    ]
     assert set(_puts(acl, "ctrl-lqr")) == {
-        p + "cmd/lqr/att", p + "ctrl/lqr/gains", p + "ctrl/lqr/status",
-        p + "stats/ctrl-lqr", p + "log/ctrl-lqr",
-    }  # fmt: skip
+        p + "cmd/lqr/att",
+        p + "ctrl/lqr/gains",
+        p + "ctrl/lqr/status",
+        p + "stats/ctrl-lqr",
+        p + "log/ctrl-lqr",
+    }
     assert {p + "clock", p + "exo/state", p + "truth/*"} <= set(_puts(acl, "environment"))
     assert set(_puts(acl, OPERATOR)) == {
         p + f"fault/{k}" for k in ("kill", "panel", "bias", "link")
@@ -119,10 +125,14 @@ def router(tmp_path: Path) -> Iterator[tuple[str, dict[str, Credentials]]]:
     issued = issue_credentials(tmp_path, USERS)
     hub = f"tcp/127.0.0.1:{free_port()}"
     settings = BusSettings(
-        mode="router", listen=[hub], connect=[], user=ROUTER, password=issued[ROUTER].password,
+        mode="router",
+        listen=[hub],
+        connect=[],
+        user=ROUTER,
+        password=issued[ROUTER].password,
         dictionary=str(tmp_path / SECURITY_DIR / DICTIONARY),
         access_control=access_control(RUN, USERS),
-    )  # fmt: skip
+    )
     with open_session(settings):
         yield hub, issued
 
@@ -131,9 +141,13 @@ def _client(hub: str, cred: Credentials | None) -> BusSettings:
     if cred is None:
         return BusSettings(mode="client", listen=[], connect=[hub])
     return BusSettings(
-        mode="client", listen=[], connect=[hub], user=cred.user, password=cred.password,
+        mode="client",
+        listen=[],
+        connect=[hub],
+        user=cred.user,
+        password=cred.password,
         tls=cred.tls,
-    )  # fmt: skip
+    )
 
 
 def test_router_refuses_strangers_and_drops_puts_outside_a_users_topics(
@@ -151,14 +165,20 @@ def test_router_refuses_strangers_and_drops_puts_outside_a_users_topics(
         open_session(_client(hub, issued["nav-lqr"])) as nav,
         open_session(_client(hub, issued[OBSERVER])) as observer,
     ):
-        sub = mon.declare_subscriber(p + "**", lambda s: got.put((str(s.key_expr), bytes(
-            s.payload.to_bytes()))))  # fmt: skip
+        sub = mon.declare_subscriber(
+            p + "**", lambda s: got.put((str(s.key_expr), bytes(s.payload.to_bytes())))
+        )
         alive: list[str] = []
         token_sub = mon.liveliness().declare_subscriber(
             p + "alive/*", lambda s: alive.append(str(s.key_expr)), history=True
         )
-        genuine = encode("cmd", {"sc": "lqr", "sigma": [0.0, 0.0, 0.1], "for_t": 60.0},
-                         seq=0, t=0.0, src="ctrl-lqr")  # fmt: skip
+        genuine = encode(
+            "cmd",
+            {"sc": "lqr", "sigma": [0.0, 0.0, 0.1], "for_t": 60.0},
+            seq=0,
+            t=0.0,
+            src="ctrl-lqr",
+        )
         assert wait_until(lambda: (ctrl.put(p + "cmd/lqr/att", genuine), not got.empty())[1])
         while not got.empty():
             got.get_nowait()
@@ -167,8 +187,10 @@ def test_router_refuses_strangers_and_drops_puts_outside_a_users_topics(
         ctrl.put(p + "truth/lqr", b"ctrl forges the truth")
         ctrl.put(p + "fault/kill", b"ctrl kills")
         nav.put(p + "clock", b"nav ends the mission")
-        tokens = [nav.liveliness().declare_token(p + "alive/ctrl-lqr"),
-                  nav.liveliness().declare_token(p + "alive/nav-lqr")]  # fmt: skip
+        tokens = [
+            nav.liveliness().declare_token(p + "alive/ctrl-lqr"),
+            nav.liveliness().declare_token(p + "alive/nav-lqr"),
+        ]
         ctrl.put(p + "cmd/lqr/att", genuine)  # after every forgery
         assert got.get(timeout=5.0) == (p + "cmd/lqr/att", genuine)
         time.sleep(0.5)  # a forgery let through would have arrived by now
@@ -192,10 +214,15 @@ def test_tls_links_need_the_runs_certificates_and_a_password(tmp_path: Path) -> 
     assert load_credentials(credentials_path(tmp_path, "nav-lqr")).tls == client_tls
     hub = f"tls/127.0.0.1:{free_port()}"
     router = BusSettings(
-        mode="router", listen=[hub], connect=[], user=ROUTER, password=issued[ROUTER].password,
+        mode="router",
+        listen=[hub],
+        connect=[],
+        user=ROUTER,
+        password=issued[ROUTER].password,
         dictionary=str(tmp_path / SECURITY_DIR / DICTIONARY),
-        access_control=access_control(RUN, USERS), tls=router_tls,
-    )  # fmt: skip
+        access_control=access_control(RUN, USERS),
+        tls=router_tls,
+    )
     nav = issued["nav-lqr"]
     no_certificate = {"root_ca_certificate": client_tls["root_ca_certificate"]}
     with open_session(router) as r:
@@ -203,9 +230,18 @@ def test_tls_links_need_the_runs_certificates_and_a_password(tmp_path: Path) -> 
         sub = r.declare_subscriber(f"ddvi/{RUN}/**", lambda s: got.put(s.payload.to_bytes()))
         for tls, password in ((no_certificate, nav.password), (client_tls, "guessed")):
             with pytest.raises(zenoh.ZError):
-                zenoh.open(zenoh_config(BusSettings(
-                    mode="client", listen=[], connect=[hub], user=nav.user, password=password,
-                    tls=tls)))  # fmt: skip
+                zenoh.open(
+                    zenoh_config(
+                        BusSettings(
+                            mode="client",
+                            listen=[],
+                            connect=[hub],
+                            user=nav.user,
+                            password=password,
+                            tls=tls,
+                        )
+                    )
+                )
         with open_session(_client(hub, nav)) as s:
             assert wait_until(lambda: (s.put(f"ddvi/{RUN}/nav/lqr/state", b"x"), got.qsize())[1])
         sub.undeclare()

@@ -54,8 +54,9 @@ def test_a_valid_table_converts_every_type() -> None:
             "items": [{"rate": 3.0}],
         }
     )
-    assert out.inner == Inner(2.0, 3, True, "y", (1.0, 2.5), ["a"], ((1.0, 0.0), (0.0, 1.0)),
-                              ((1.0, 2.0),), 0.5)  # fmt: skip
+    assert out.inner == Inner(
+        2.0, 3, True, "y", (1.0, 2.5), ["a"], ((1.0, 0.0), (0.0, 1.0)), ((1.0, 2.0),), 0.5
+    )
     assert isinstance(out.inner.rate, float) and out.items == [Inner(rate=3.0)]
 
 

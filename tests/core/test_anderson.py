@@ -11,8 +11,9 @@ import scipy.linalg
 
 from ddvi_core import anderson
 from ddvi_core.solve import _vi_scaling, solve
-from ddvi_core.systems import System, load_system
+from ddvi_core.systems import System
 from ddvi_core.value_iteration import StepSequence, VIResult, value_iteration
+from services.config.files import load_system
 
 SYSTEMS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "systems"
 STIFF = ("dc-motor-position", "thermal-chain")
@@ -26,11 +27,18 @@ def _vi(system: System, memory: int, max_iterations: int = 10_000) -> VIResult:
     pr, cfg = system.problem, system.learning
     # Anderson accelerates the explicit (adaptive) step; the derived step is the implicit one
     return value_iteration(
-        pr.A, pr.B, pr.Q, pr.R, steps=StepSequence("adaptive", 0.5),
-        bounds=cfg.bound_schedule(), tol=1e-6,
-        max_iterations=max_iterations, scaling=_vi_scaling(system), rule="relative",
+        pr.A,
+        pr.B,
+        pr.Q,
+        pr.R,
+        steps=StepSequence("adaptive", 0.5),
+        bounds=cfg.bound_schedule(),
+        tol=1e-6,
+        max_iterations=max_iterations,
+        scaling=_vi_scaling(system),
+        rule="relative",
         memory=memory,
-    )  # fmt: skip
+    )
 
 
 def _are_gain(system: System) -> np.ndarray:

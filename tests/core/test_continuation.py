@@ -14,9 +14,9 @@ import scipy.linalg
 
 from ddvi_core.continuation import basis_images, continuation_loop, gain_error, linearisation
 from ddvi_core.solve import solve
-from ddvi_core.systems import load_system
 from ddvi_core.value_iteration import BoundSchedule, StepSequence, value_iteration
 from services.cli import main
+from services.config.files import load_system
 
 SYSTEMS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "systems"
 
@@ -68,9 +68,17 @@ def test_implicit_steps_need_no_stabilising_gain() -> None:
     steps reach the Riccati gain within the tolerance they report, in a few dozen steps."""
     assert np.max(np.linalg.eigvals(A - B @ np.linalg.solve(R, B.T * 1e-3)).real) > 0
     res = value_iteration(
-        A, B, Q, R, steps=StepSequence("implicit", 0.5), bounds=BoundSchedule("geometric"),
-        tol=1e-8, rule="relative", scaling=False, max_iterations=10_000,
-    )  # fmt: skip
+        A,
+        B,
+        Q,
+        R,
+        steps=StepSequence("implicit", 0.5),
+        bounds=BoundSchedule("geometric"),
+        tol=1e-8,
+        rule="relative",
+        scaling=False,
+        max_iterations=10_000,
+    )
     P_star = scipy.linalg.solve_continuous_are(A, B, Q, R)
     K_star = np.linalg.solve(R, B.T @ P_star)
     assert res.converged and res.iterations < 100, res.message
@@ -88,9 +96,16 @@ def test_a_map_that_leaves_the_cone_stops_the_implicit_steps_and_says_so() -> No
         return np.diag([-0.1 * P[0, 0], -0.5 * P[0, 0]]), np.zeros((1, 2))
 
     P, _, iterations, _, converged, _, _, why = continuation_loop(
-        leaky_map, Q_s, R_s, 1e-3 * np.eye(2), 0.5, BoundSchedule("geometric", 1e6),
-        tol=1e-9, max_iterations=10_000, rule="residual",
-    )  # fmt: skip
+        leaky_map,
+        Q_s,
+        R_s,
+        1e-3 * np.eye(2),
+        0.5,
+        BoundSchedule("geometric", 1e6),
+        tol=1e-9,
+        max_iterations=10_000,
+        rule="residual",
+    )
     assert not converged and iterations < 200
     assert "P left the positive semidefinite cone 3 times in a row" in why
     assert np.linalg.eigvalsh(P)[0] >= 0  # what it returns is the last iterate in the cone

@@ -170,8 +170,9 @@ def _with_spurious_mode(data: IntegralData, rate: float) -> IntegralData:
     """``data`` with one more exostate column, sin(rate t), that the system does not feel."""
     extra = (1.0 - np.cos(rate * data.t)) / rate  # its running integral from t = 0
     extra -= extra[0]
-    return IntegralData(data.t, data.x, data.Ix, data.Iu, np.hstack([data.Iv, extra[:, None]]),
-                        data.segment)  # fmt: skip
+    return IntegralData(
+        data.t, data.x, data.Ix, data.Iu, np.hstack([data.Iv, extra[:, None]]), data.segment
+    )
 
 
 def test_exostate_groups_follow_the_exosystem():
@@ -203,8 +204,7 @@ def test_a_refit_of_some_modes_holds_the_others():
     data = simulate(6000).data()
     held = D.copy()
     held[:, 0] = 5.0  # a wrong constant column: refitted, the harmonics held
-    D_fit = fit_exosystem_input(data, A, B, length=LENGTH, stride=STRIDE, groups=[[0]],
-                                held=held)  # fmt: skip
+    D_fit = fit_exosystem_input(data, A, B, length=LENGTH, stride=STRIDE, groups=[[0]], held=held)
     assert np.allclose(D_fit, D, atol=1e-7)
     with pytest.raises(LearningError, match="disjoint"):
         fit_exosystem_input(data, A, B, length=LENGTH, stride=STRIDE, groups=[[0], [0, 1]])

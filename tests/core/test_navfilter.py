@@ -26,8 +26,7 @@ X0 = np.array([240.0, -29_000.0, 30.0, 0.0, -1.5 * N * 240.0, 0.02])  # a drifti
 def _cw_track(steps: int) -> np.ndarray:
     """(steps, 6) states of the free CW motion from X0, every DT s, integrated numerically."""
     t = np.arange(steps) * DT
-    sol = solve_ivp(lambda _, x: hcw_matrix(N) @ x, (0, t[-1]), X0, t_eval=t, rtol=1e-12,
-                    atol=1e-9)  # fmt: skip
+    sol = solve_ivp(lambda _, x: hcw_matrix(N) @ x, (0, t[-1]), X0, t_eval=t, rtol=1e-12, atol=1e-9)
     return sol.y.T
 
 

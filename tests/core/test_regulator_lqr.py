@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
 import scipy.linalg
 
 from ddvi_core import models
-from ddvi_core.lqr import NotStabilisingError, policy_iteration, solve_lqr
+from ddvi_core.lqr import NotStabilisingError, policy_iteration, relative_gain_error, solve_lqr
 from ddvi_core.regulator import (
     InfeasibleError,
     feedforward_gain,
@@ -209,3 +210,14 @@ def test_policy_iteration_rejects_non_stabilising_K0() -> None:
     A, B, Q, R = _random_lqr(7)
     with pytest.raises(NotStabilisingError, match="K0"):
         policy_iteration(A, B, Q, R, K0=np.zeros((2, 4)))
+
+
+def test_relative_gain_error_is_the_frobenius_ratio_and_guards_its_edges() -> None:
+    K_ref = np.array([[3.0, 4.0]])
+    assert relative_gain_error([[3.0, 4.5]], K_ref) == pytest.approx(0.1)
+    assert relative_gain_error(np.zeros((1, 2)), np.zeros((1, 2))) == 0.0
+    assert relative_gain_error([[1e-9, 0.0]], np.zeros((1, 2))) == math.inf
+    with pytest.raises(ValueError, match=r"K is \(1, 3\), K_ref \(1, 2\)"):
+        relative_gain_error(np.ones((1, 3)), K_ref)
+    with pytest.raises(ValueError, match="non-finite"):
+        relative_gain_error([[np.nan, 0.0]], K_ref)

@@ -16,8 +16,9 @@ from ddvi_core.defaults import DERIVED_KEYS, derive_learning
 from ddvi_core.learning import LearningError
 from ddvi_core.learning_config import LearningConfig
 from ddvi_core.solve import reference_errors, solve
-from ddvi_core.systems import load_system, system_from_table
+from ddvi_core.systems import system_from_table
 from services.cli import main
+from services.config.files import load_system
 
 SYSTEMS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "systems"
 FILES = sorted(p.stem for p in SYSTEMS.glob("*.toml"))

@@ -182,9 +182,16 @@ def test_a_map_that_leaves_the_psd_cone_stops_early_and_says_so() -> None:
         return np.diag([-0.1 * P[0, 0], -0.5 * P[0, 0]]), np.zeros((1, 2))
 
     out = value_iteration_loop(
-        leaky_map, Q_s, R_s, 1e-3 * np.eye(2), StepSequence("constant", 0.01),
-        BoundSchedule("geometric", 1e6), tol=1e-9, max_iterations=200_000, max_psd_resets=20,
-    )  # fmt: skip
+        leaky_map,
+        Q_s,
+        R_s,
+        1e-3 * np.eye(2),
+        StepSequence("constant", 0.01),
+        BoundSchedule("geometric", 1e6),
+        tol=1e-9,
+        max_iterations=200_000,
+        max_psd_resets=20,
+    )
     P, _, iterations, resets, converged, _, _, why = out
     assert not converged and resets == 20
     assert iterations < 2_000  # not the 200,000 it would otherwise spin through
@@ -197,7 +204,14 @@ def test_a_map_that_leaves_the_psd_cone_stops_early_and_says_so() -> None:
         return A_s.T @ P + P @ A_s, np.zeros((1, 2))
 
     out = value_iteration_loop(
-        lyap, Q_s, R_s, 1e-3 * np.eye(2), StepSequence("constant", 0.01),
-        BoundSchedule("geometric", 1e6), tol=1e-9, max_iterations=200_000, max_psd_resets=20,
-    )  # fmt: skip
+        lyap,
+        Q_s,
+        R_s,
+        1e-3 * np.eye(2),
+        StepSequence("constant", 0.01),
+        BoundSchedule("geometric", 1e6),
+        tol=1e-9,
+        max_iterations=200_000,
+        max_psd_resets=20,
+    )
     assert out[4] and out[3] == 0 and out[7].startswith("residual")

@@ -22,9 +22,14 @@ Q, R = np.eye(2), np.eye(1)
 def _learn(collector) -> tuple[float, float]:
     """Relative errors of the learned P and K against the Riccati solution."""
     r = learn_from_data(
-        collector.data(), Q, R, time_unit=1.0, steps=StepSequence("constant", 0.05),
-        bounds=BoundSchedule("geometric"), state_scale=[1.0, 1.0],
-    )  # fmt: skip
+        collector.data(),
+        Q,
+        R,
+        time_unit=1.0,
+        steps=StepSequence("constant", 0.05),
+        bounds=BoundSchedule("geometric"),
+        state_scale=[1.0, 1.0],
+    )
     assert r.converged, r.message
     exact = solve_lqr(A, B, Q, R)
     rel = lambda a, b: float(np.linalg.norm(a - b) / np.linalg.norm(b))  # noqa: E731
@@ -37,10 +42,18 @@ def _fly(sigma: float, seed: int = 2) -> tuple[IntervalCollector, WindowedCollec
     rng = np.random.default_rng(seed)
     cols = IntervalCollector(2, 1, 0, 5.0), WindowedCollector(2, 1, 0, 5.0)
     for t, x, u, v in simulate_zoh(
-        A, B, None, None, [1.0, 0.0], None, K0=np.zeros((1, 2)),
-        exploration=Exploration.spread(1.0, 1.0, 6, seed=seed), sample_period=0.05,
-        command_period=0.05, duration=400.0,
-    ):  # fmt: skip
+        A,
+        B,
+        None,
+        None,
+        [1.0, 0.0],
+        None,
+        K0=np.zeros((1, 2)),
+        exploration=Exploration.spread(1.0, 1.0, 6, seed=seed),
+        sample_period=0.05,
+        command_period=0.05,
+        duration=400.0,
+    ):
         measured = x + rng.normal(0.0, sigma, 2) if sigma else x
         for c in cols:
             c.add(t, measured, u, v)

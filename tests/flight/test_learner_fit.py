@@ -54,8 +54,14 @@ def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
     assert ctrl.L.shape == (1, 6)  # the density ratio is in the learner's exostate
     assert "model fit (condition" in out["fit"]["log"][-1]
     # the learned gains travel on the bus as the controller process publishes them
-    body = {"sc": "fit", "K": ctrl.K, "L": ctrl.L, "source": ctrl.source,
-            "iteration": ctrl.iteration, "converged": ctrl.converged}  # fmt: skip
+    body = {
+        "sc": "fit",
+        "K": ctrl.K,
+        "L": ctrl.L,
+        "source": ctrl.source,
+        "iteration": ctrl.iteration,
+        "converged": ctrl.converged,
+    }
     assert decode(encode("gains", body, seq=0, t=1.0, src="ctrl-fit")).body["source"] == "model-fit"
     # no divergence: after learning the deputy closes on its slot (33 km behind at orbit 6)
     t, y = out["fit"]["t"], out["fit"]["x"][:, 1]
@@ -172,9 +178,14 @@ def _learned(dep, name="fit"):
     ctrl.result = SimpleNamespace(model=SimpleNamespace(A=p.A, B=p.B))
     store = ctrl.learner.new_store(ctrl.exosystem[1].shape[0])
     ctrl.learner.station = StationKeeping(
-        ctrl.deputy.learning, orbit_period(dep), 0.0, ctrl.K, ctrl.result.model, ctrl.exosystem,
+        ctrl.deputy.learning,
+        orbit_period(dep),
+        0.0,
+        ctrl.K,
+        ctrl.result.model,
+        ctrl.exosystem,
         store,
-    )  # fmt: skip
+    )
     return ctrl
 
 
@@ -255,8 +266,12 @@ def test_validation_compares_the_gain_with_that_of_the_fit_without_the_hold_out(
     ctrl = out["fit"]["controller"]
     assert "validated on the hold-out" in out["fit"]["log"][0]
     lrn, data = ctrl.deputy.learning, ctrl.collector.data()
-    options = {"length": lrn.interval, "stride": lrn.fit_stride, "smoothing": 0.0,
-               "translation": [0.0, 1.0, 0.0, 0.0]}  # fmt: skip
+    options = {
+        "length": lrn.interval,
+        "stride": lrn.fit_stride,
+        "smoothing": 0.0,
+        "translation": [0.0, 1.0, 0.0, 0.0],
+    }
     holdout = orbit_period(dep)
     info: dict = {}
     assert validate_gain(data, ctrl.K, ctrl.problem, lrn, options, holdout, info) is None
@@ -264,8 +279,9 @@ def test_validation_compares_the_gain_with_that_of_the_fit_without_the_hold_out(
     assert info["validation_gain"] < 0.1
     why = validate_gain(data, 1.5 * ctrl.K, ctrl.problem, lrn, options, holdout, {})
     assert why is not None and "validation_gain_change = 0.25" in why
-    why = validate_gain(data.since(data.t[-1] - 1.2 * holdout), ctrl.K, ctrl.problem, lrn,
-                        options, holdout, {})  # fmt: skip
+    why = validate_gain(
+        data.since(data.t[-1] - 1.2 * holdout), ctrl.K, ctrl.problem, lrn, options, holdout, {}
+    )
     assert why is not None and "too little to fit on and check" in why
 
 

@@ -136,12 +136,20 @@ def test_link_delay_and_loss_from_the_deployment(tmp_path: Path) -> None:
     dep = tmp_path / "links.toml"
     dep.write_text(DELAYED)
     r = subprocess.run(
-        [sys.executable, "-m", "services.cli", "run", str(dep), "--output",
-         str(tmp_path / "runs"), "--quiet"],
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "run",
+            str(dep),
+            "--output",
+            str(tmp_path / "runs"),
+            "--quiet",
+        ],
         capture_output=True,
         text=True,
         timeout=110,
-    )  # fmt: skip
+    )
     # completed, with the commands the lossy link dropped missing: exit status 3
     assert r.returncode == 3 and "commands were" in r.stderr, r.stderr[-3000:]
     out = Path(r.stdout.strip().splitlines()[-1])

@@ -1,5 +1,5 @@
-"""The navigation service's filter in a short mission flown in one process (the service's own
-code, its messages encoded and decoded as on the wire), and its deployment keys."""
+"""The navigation service's filter in a short mission flown in one process (the navigation
+component the service runs), and its deployment keys."""
 
 from __future__ import annotations
 
@@ -77,8 +77,13 @@ def test_the_one_process_run_draws_the_navigation_services_noise() -> None:
         t["run"]["seed"] = seed
         # on its slot from the start, so the commands follow the noise (not the limit)
         t["deputy"][0]["y_ref"] = -29139.0
-        t["deputy"][0]["orbit"] = {"a": 6678136.0, "i": 45.0, "raan": 20.0, "argp": 30.0,
-                                   "f": 19.75}  # fmt: skip
+        t["deputy"][0]["orbit"] = {
+            "a": 6678136.0,
+            "i": 45.0,
+            "raan": 20.0,
+            "argp": 30.0,
+            "f": 19.75,
+        }
         t["deputy"][0]["navigation"] = {"position_noise": 1.0, "velocity_noise": 1e-3}
         if other:  # drawn first, from its own generator
             lone = {"name": "other", "controller": "lqr", "navigation": {"position_noise": 5.0}}
@@ -94,7 +99,7 @@ def test_the_one_process_run_draws_the_navigation_services_noise() -> None:
 
 
 def test_deputies_whose_names_have_the_same_letters_draw_their_own_noise() -> None:
-    from services.flight.navigation import noise_generator
+    from services.flight.relative_navigation import noise_generator
 
     dep = deployment_from_table(tomllib.loads(SHORT))
     a, b = (dataclasses.replace(dep.deputy[0], name=n) for n in ("d01", "d10"))

@@ -13,8 +13,7 @@ from services.flight.phases import Phase, PhaseMachine, PhaseTransitionError
 def test_a_learner_explores_learns_relearns_and_learns_again() -> None:
     phases = PhaseMachine(Phase.EXPLORING)
     assert phases.exploring
-    for to, exploring in ((Phase.LEARNED, False), (Phase.RELEARNING, True),
-                          (Phase.LEARNED, False)):  # fmt: skip
+    for to, exploring in ((Phase.LEARNED, False), (Phase.RELEARNING, True), (Phase.LEARNED, False)):
         phases.move(to)
         assert phases.current is to and phases.exploring is exploring
 

@@ -14,8 +14,9 @@ from services.flight.step_gate import StepGate
 
 
 def _run(mode: str = "lockstep", stale: float = 0.0) -> SimpleNamespace:
-    return SimpleNamespace(mode=mode, fsw_period=60.0, command_deadline=1.0, hang_timeout=3.0,
-                           nav_stale_limit=stale)  # fmt: skip
+    return SimpleNamespace(
+        mode=mode, fsw_period=60.0, command_deadline=1.0, hang_timeout=3.0, nav_stale_limit=stale
+    )
 
 
 class _Clock:
@@ -96,7 +97,9 @@ def test_real_time_flies_safe_on_stale_navigation_and_says_so_once_each_way() ->
     assert safe and said is not None and "flying the safe attitude" in said
     assert gate.stale(240.0, 0.0, first=False) == (True, None)
     assert gate.stale(300.0, 300.0, first=False) == (
-        False, "navigation is back: flying the control law")  # fmt: skip
+        False,
+        "navigation is back: flying the control law",
+    )
     gate.clock(300.0 + 120.0)
     assert gate.ready(300.0)  # real time does not wait past the limit
     StepGate(_run(), "lqr", 10.0, 0.0).check(60.0, lambda _: None)  # lock-step: no clock yet

@@ -27,16 +27,24 @@ CAMPAIGN = {
     "campaign": {"deployment": "rendezvous", "runs": 50, "seed": 7, "success_threshold": 20.0},
     "overrides": {"run": {"orbits": 2.0}},
     "dispersion": [
-        {"key": "environment.density_factor", "distribution": "uniform", "low": 0.8,
-         "high": 1.25},
-        {"key": "deputy[*].initial.along_track", "distribution": "normal", "mean": -29000.0,
-         "std": 3000.0, "low": -31000.0, "high": -28000.0},
-        {"key": "deputy[1].navigation.position_noise", "distribution": "choice",
-         "values": [0.0, 0.5, 1.0]},
+        {"key": "environment.density_factor", "distribution": "uniform", "low": 0.8, "high": 1.25},
+        {
+            "key": "deputy[*].initial.along_track",
+            "distribution": "normal",
+            "mean": -29000.0,
+            "std": 3000.0,
+            "low": -31000.0,
+            "high": -28000.0,
+        },
+        {
+            "key": "deputy[1].navigation.position_noise",
+            "distribution": "choice",
+            "values": [0.0, 0.5, 1.0],
+        },
         {"key": "deputy[0].y_ref", "distribution": "list", "values": [0.0, 10.0]},
         {"key": "deputy[*].learning.seed", "distribution": "seed"},
     ],
-}  # fmt: skip
+}
 
 
 def spec(table: dict | None = None):
@@ -80,27 +88,75 @@ def test_a_run_depends_on_the_campaign_seed_and_its_index_alone() -> None:
         ({"campaign": {"runz": 3}}, "campaign.runz: unknown key (did you mean 'runs'?)"),
         ({"campain": {}}, "campain: unknown key (did you mean 'campaign'?)"),
         ({"overrides": {"run": {"orbitz": 3.0}}}, "run.orbitz: unknown key (did you mean"),
-        ({"dispersion": [{"key": "environment.density_factr", "distribution": "uniform",
-                          "low": 0.8, "high": 1.2}]},
-         "environment.density_factr: unknown key (did you mean 'density_factor'?)"),
-        ({"dispersion": [{"key": "environment.density_factor", "distribution": "uniform",
-                          "lo": 0.8, "high": 1.2}]},
-         "dispersion[0].lo: unknown key (did you mean 'low'?)"),
-        ({"dispersion": [{"key": "environment.density_factor", "distribution": "unifrm"}]},
-         "dispersion[0].distribution: expected one of"),
-        ({"dispersion": [{"key": "deputy[4].y_ref", "distribution": "seed"}]},
-         "deputy[4]: the deployment has 2 [[deputy]]"),
-        ({"dispersion": [{"key": "deputy[*].initial.alongtrack", "distribution": "seed"}]},
-         "deputy[0].initial.alongtrack: unknown key"),
-        ({"dispersion": [{"key": "environment.density_factor", "distribution": "uniform",
-                          "low": -1.0, "high": 1.2}]},
-         "dispersion[0] (environment.density_factor): environment.density_factor: "),
-        ({"dispersion": [{"key": "run.mode", "distribution": "choice",
-                          "values": ["lockstep", "fast"]}]}, "run.mode: expected"),
-        ({"dispersion": [{"key": "environment.density_factor", "distribution": "normal",
-                          "mean": 1.0}]}, "dispersion[0].std: required by a normal"),
+        (
+            {
+                "dispersion": [
+                    {
+                        "key": "environment.density_factr",
+                        "distribution": "uniform",
+                        "low": 0.8,
+                        "high": 1.2,
+                    }
+                ]
+            },
+            "environment.density_factr: unknown key (did you mean 'density_factor'?)",
+        ),
+        (
+            {
+                "dispersion": [
+                    {
+                        "key": "environment.density_factor",
+                        "distribution": "uniform",
+                        "lo": 0.8,
+                        "high": 1.2,
+                    }
+                ]
+            },
+            "dispersion[0].lo: unknown key (did you mean 'low'?)",
+        ),
+        (
+            {"dispersion": [{"key": "environment.density_factor", "distribution": "unifrm"}]},
+            "dispersion[0].distribution: expected one of",
+        ),
+        (
+            {"dispersion": [{"key": "deputy[4].y_ref", "distribution": "seed"}]},
+            "deputy[4]: the deployment has 2 [[deputy]]",
+        ),
+        (
+            {"dispersion": [{"key": "deputy[*].initial.alongtrack", "distribution": "seed"}]},
+            "deputy[0].initial.alongtrack: unknown key",
+        ),
+        (
+            {
+                "dispersion": [
+                    {
+                        "key": "environment.density_factor",
+                        "distribution": "uniform",
+                        "low": -1.0,
+                        "high": 1.2,
+                    }
+                ]
+            },
+            "dispersion[0] (environment.density_factor): environment.density_factor: ",
+        ),
+        (
+            {
+                "dispersion": [
+                    {"key": "run.mode", "distribution": "choice", "values": ["lockstep", "fast"]}
+                ]
+            },
+            "run.mode: expected",
+        ),
+        (
+            {
+                "dispersion": [
+                    {"key": "environment.density_factor", "distribution": "normal", "mean": 1.0}
+                ]
+            },
+            "dispersion[0].std: required by a normal",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_bad_campaign_names_the_key(change: dict, message: str) -> None:
     table = {**copy.deepcopy(CAMPAIGN), **change}
     with pytest.raises(CampaignError) as err:
@@ -114,8 +170,10 @@ def test_the_cli_refuses_a_bad_campaign_in_one_line(tmp_path: Path, capsys) -> N
     bad.write_text('[campaign]\ndeployment = "rendezvous"\nrunz = 3\n')
     assert main(["campaign", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == (f"ddvi campaign: {bad}: campaign.runz: unknown key (did you mean 'runs'?); "
-                   "allowed: deployment, runs, seed, success_threshold, name")  # fmt: skip
+    assert err == (
+        f"ddvi campaign: {bad}: campaign.runz: unknown key (did you mean 'runs'?); "
+        "allowed: deployment, runs, seed, success_threshold, name"
+    )
 
 
 def test_the_shipped_campaign_is_the_default_mission_dispersed() -> None:
@@ -125,7 +183,9 @@ def test_the_shipped_campaign_is_the_default_mission_dispersed() -> None:
     assert s.base == read_table("rendezvous")
     keys = {d.key: d for d in s.dispersions}
     assert (keys["environment.density_factor"].low, keys["environment.density_factor"].high) == (
-        0.8, 1.25)  # fmt: skip
+        0.8,
+        1.25,
+    )
     assert keys["deputy[*].navigation.position_noise"].high == 1.0
     assert "deputy[*].initial.along_track" in keys
 
@@ -134,12 +194,17 @@ def _row(s, i: int, final: float | None, completed: bool = True) -> dict:
     _, values, seed = draw_run(s, i)
     row = {"run": i, "seed": seed, "completed": completed, "error": None if completed else "boom"}
     for name, ctrl in (("lqr", "lqr"), ("ddvi", "ddvi value-iteration")):
-        row |= {f"{name}.controller": ctrl, f"{name}.final_error_m": final,
-                f"{name}.last_orbit_max_error_m": final, f"{name}.gain_error": 0.01,
-                f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None,
-                f"{name}.learned": True if name == "ddvi" else None,
-                f"{name}.gain_error_vs_lqr": 0.01 if name == "ddvi" else None,
-                f"{name}.can_hold": True, f"{name}.note": None}  # fmt: skip
+        row |= {
+            f"{name}.controller": ctrl,
+            f"{name}.final_error_m": final,
+            f"{name}.last_orbit_max_error_m": final,
+            f"{name}.gain_error": 0.01,
+            f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None,
+            f"{name}.learned": True if name == "ddvi" else None,
+            f"{name}.gain_error_vs_lqr": 0.01 if name == "ddvi" else None,
+            f"{name}.can_hold": True,
+            f"{name}.note": None,
+        }
     return row | values
 
 
@@ -193,10 +258,10 @@ def test_a_failed_mission_is_a_row_with_its_error(monkeypatch: pytest.MonkeyPatc
 
     monkeypatch.setattr(campaign_run, "inprocess_metrics", explode)
     table, _, seed = draw_run(spec(), 4)
-    row, timing = campaign_run.execute({"run": 4, "seed": seed, "table": table,
-                                        "mode": "inprocess"})  # fmt: skip
-    assert row == {"run": 4, "seed": seed, "completed": False,
-                   "error": row["error"]}  # fmt: skip
+    row, timing = campaign_run.execute(
+        {"run": 4, "seed": seed, "table": table, "mode": "inprocess"}
+    )
+    assert row == {"run": 4, "seed": seed, "completed": False, "error": row["error"]}
     assert row["error"].startswith("FloatingPointError: the truth diverged (test_campaign.py:")
     assert timing["run"] == 4 and timing["wall_s"] >= 0
 
@@ -237,8 +302,9 @@ def test_a_campaign_says_up_front_which_deputies_cannot_hold_their_slot(
     from services.ground.campaign import command as campaign
 
     table = copy.deepcopy(CAMPAIGN)
-    table["dispersion"].append({"key": "deputy[0].area_factor", "distribution": "choice",
-                                "values": [1.0, 0.5]})  # fmt: skip
+    table["dispersion"].append(
+        {"key": "deputy[0].area_factor", "distribution": "choice", "values": [1.0, 0.5]}
+    )
     s = spec(table)
     tasks = {i: campaign.task(s, i, "inprocess") for i in range(6)}
     halved = [i for i, t in tasks.items() if t["values"]["deputy[0].area_factor"] == 0.5]
@@ -256,7 +322,10 @@ def test_a_campaign_says_up_front_which_deputies_cannot_hold_their_slot(
     def execute(t):  # what was said before the run ran
         said.append(capsys.readouterr().err)
         return {"run": t["run"], "seed": t["seed"], "completed": True, "error": None}, {
-            "run": t["run"], "wall_s": 0.0, "worker": "w"}  # fmt: skip
+            "run": t["run"],
+            "wall_s": 0.0,
+            "worker": "w",
+        }
 
     monkeypatch.setattr(campaign, "execute", execute)
     assert campaign.only_run(s, tmp_path, halved[0], "inprocess") == 0

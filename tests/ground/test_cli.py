@@ -129,6 +129,11 @@ def test_unknown_system_name_suggests_the_builtin(capsys):
     assert code == 2 and "did you mean 'rendezvous'" in err
 
 
+def test_unknown_system_name_suggests_the_shipped_example(capsys):
+    code, _, err = run(capsys, "check", "cartpole")
+    assert code == 2 and "did you mean 'cart-pole'" in err and "examples: " in err
+
+
 def test_rank_deficient_data_prints_the_report_not_a_gain(capsys, tmp_path):
     path = write(
         tmp_path,

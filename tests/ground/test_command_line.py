@@ -73,8 +73,13 @@ def test_a_pipe_closed_early_ends_quietly() -> None:
     read, write = os.pipe()
     os.close(read)
     try:
-        r = subprocess.run([sys.executable, "-m", "services.cli", "scenarios"], stdout=write,
-                           stderr=subprocess.PIPE, text=True, timeout=60)  # fmt: skip
+        r = subprocess.run(
+            [sys.executable, "-m", "services.cli", "scenarios"],
+            stdout=write,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
     finally:
         os.close(write)
     assert r.stderr == ""
@@ -146,9 +151,11 @@ def test_ddvi_monitor_refuses_a_pattern_matching_nothing_at_once(
 
 
 def test_zenoh_errors_lose_their_rust_source_path() -> None:
-    exc = RuntimeError("Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at "
-                       "/root/.cargo/git/checkouts/zenoh-9c5/cc83980/zenoh/src/net/runtime/"
-                       "orchestrator.rs:447.")  # fmt: skip
+    exc = RuntimeError(
+        "Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at "
+        "/root/.cargo/git/checkouts/zenoh-9c5/cc83980/zenoh/src/net/runtime/"
+        "orchestrator.rs:447."
+    )
     assert error_text(exc) == "Unable to connect to any of [Single(tcp/127.0.0.1:1)]!"
 
 
@@ -164,8 +171,9 @@ def test_a_sweep_warns_when_its_runs_end_before_a_learner_learns() -> None:
     runs = sweep_points("delay", read_table("rendezvous"), [0.0, 60.0], orbits=[10.0])
     warned = unlearned_points(runs)
     assert [p for p, _ in warned] == [{"value": 0.0}, {"value": 60.0}]
-    assert all("deputy 'ddvi' learns at orbit 15 but the run ends at orbit 10" in w
-               for _, w in warned)  # fmt: skip
+    assert all(
+        "deputy 'ddvi' learns at orbit 15 but the run ends at orbit 10" in w for _, w in warned
+    )
     assert unlearned_points(sweep_points("delay", read_table("rendezvous"), [0.0])) == []
 
 
@@ -238,9 +246,21 @@ def test_a_run_the_truth_ends_early_says_why_and_where(tmp_path: Path) -> None:
 
     path = tmp_path / "reentry.toml"
     path.write_bytes(tomli_w.dumps(table).encode())
-    r = subprocess.run([sys.executable, "-m", "services.cli", "run", str(path), "--quiet",
-                        "--output", str(tmp_path / "runs")], capture_output=True, text=True,
-                       timeout=600)  # fmt: skip
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "run",
+            str(path),
+            "--quiet",
+            "--output",
+            str(tmp_path / "runs"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 1, r.stderr[-3000:]
     (folder,) = (tmp_path / "runs").iterdir()
     log = folder / "logs" / "environment.log"

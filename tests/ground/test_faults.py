@@ -217,16 +217,22 @@ def _check_rejections(services: dict[str, dict[str, int]], rounds: dict[str, int
     -> how many times each kind of garbage went on it)."""
     for name, inputs in INPUTS.items():
         c = services[name]
-        n = sum(k for key, k in rounds.items() if any(zenoh.KeyExpr(f"ddvi/*/{i}").intersects(
-            zenoh.KeyExpr(key)) for i in inputs))  # fmt: skip
+        n = sum(
+            k
+            for key, k in rounds.items()
+            if any(zenoh.KeyExpr(f"ddvi/*/{i}").intersects(zenoh.KeyExpr(key)) for i in inputs)
+        )
         assert n > 0, name
         assert c["handler_errors"] == 0, name
         # random bytes and truncated payloads do not unpack; one of each other kind
         assert c["rejected.malformed"] == 2 * n, name
         for reason in ("oversized", "wrong_schema", "non_finite"):
             assert c[f"rejected.{reason}"] == n, (name, reason)
-        replays = ("ignored.duplicate", "ignored.stale") if name == "monitor" else (
-            "rejected.duplicate", "rejected.stale")  # fmt: skip
+        replays = (
+            ("ignored.duplicate", "ignored.stale")
+            if name == "monitor"
+            else ("rejected.duplicate", "rejected.stale")
+        )
         assert c[replays[0]] + c[replays[1]] == n, name
 
 
@@ -354,10 +360,13 @@ def test_killed_services_are_restarted_and_the_mission_completes(
     recorded, complete = read_recording(out / "recording.mcap")
     assert complete
     cmds = {
-        sc: sorted(r.data["body"]["for_t"] for r in recorded
-                   if r.schema == "ddvi.cmd" and r.data["body"]["sc"] == sc)
+        sc: sorted(
+            r.data["body"]["for_t"]
+            for r in recorded
+            if r.schema == "ddvi.cmd" and r.data["body"]["sc"] == sc
+        )
         for sc in ("lqr", "ddvi")
-    }  # fmt: skip
+    }
     end = summary["sim_time_s"]
     for sc, times in cmds.items():
         assert times[-1] >= end - 60.0, sc  # both controllers fly to the end
@@ -365,9 +374,10 @@ def test_killed_services_are_restarted_and_the_mission_completes(
     # from a step after the kill; whether a step went without one depends on where in the step
     # the kill fell, so no gap is required, but no step is commanded twice
     ddvi = sorted(
-        (r.data["body"]["for_t"], r.data["seq"]) for r in recorded
+        (r.data["body"]["for_t"], r.data["seq"])
+        for r in recorded
         if r.schema == "ddvi.cmd" and r.data["src"] == "ctrl-ddvi"
-    )  # fmt: skip
+    )
     assert len({t for t, _ in ddvi}) == len(ddvi)
     restarts = [t for (_, s0), (t, s1) in itertools.pairwise(ddvi) if s1 < s0]
     assert len(restarts) == 1 and restarts[0] > killed_at
@@ -470,8 +480,9 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
         RESTARTED.replace("{restart}", "").replace("orbits = 10.0", "orbits = 40.0")
     )
     mission.wait_for(600.0)
-    r = mission.fault("link", "--from", "ctrl-lqr", "--to", "environment", "--topic",
-                      "cmd/*/att", "--loss", "0.5")  # fmt: skip
+    r = mission.fault(
+        "link", "--from", "ctrl-lqr", "--to", "environment", "--topic", "cmd/*/att", "--loss", "0.5"
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "environment now receives cmd/*/att from ctrl-lqr with loss 0.5" in r.stdout
     # a glob reaches every controller: each one's answer is printed; reached by --hub alone,
@@ -484,7 +495,8 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
         assert said in r.stdout, r.stdout
     r = mission.fault("link", "--from", "nav/ddvi", "--to", "ctrl/ddvi", "--delay", "120")
     assert r.returncode == 0 and "ctrl-ddvi now receives * from nav-ddvi with delay 120" in (
-        r.stdout), r.stdout + r.stderr  # fmt: skip
+        r.stdout
+    ), r.stdout + r.stderr
     r = mission.fault("link", "--from", "ctrl-lqr", "--to", "environment", "--loss", "2")
     said = "ddvi fault: link.loss: expected a probability in [0, 1], got 2.0"
     assert r.returncode == 2 and said in r.stderr and not r.stdout, r.stdout + r.stderr

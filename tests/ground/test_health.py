@@ -21,8 +21,11 @@ ORBITS = 8.0
 
 def _deployment(tmp: Path, command_deadline: float, hang_timeout: float) -> Path:
     text = DEPLOYMENT.read_text().replace("orbits = 40.0", f"orbits = {ORBITS}", 1)
-    text = text.replace("command_deadline = 20.0", f"command_deadline = {command_deadline}\n"
-                        f"hang_timeout = {hang_timeout}", 1)  # fmt: skip
+    text = text.replace(
+        "command_deadline = 20.0",
+        f"command_deadline = {command_deadline}\nhang_timeout = {hang_timeout}",
+        1,
+    )
     path = tmp / f"health-{hang_timeout:g}.toml"
     path.write_text(text)
     return path

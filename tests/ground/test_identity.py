@@ -50,8 +50,14 @@ def _forged(
     other = {"sc": "ddvi", "sigma": sigma, "for_t": END}  # ctrl-lqr commanding the DDVI deputy
     replay = {"sc": "lqr", "sigma": sigma, "for_t": END}  # an old seq with a new body
     stats = {"service": "environment", "counters": {"rejected": 0, "bad_commands": 0}}
-    gains = {"sc": "ddvi", "K": np.zeros((1, 4)), "L": np.zeros((1, 5)), "source": "ddvi",
-             "iteration": 1, "converged": True}  # fmt: skip
+    gains = {
+        "sc": "ddvi",
+        "K": np.zeros((1, 4)),
+        "L": np.zeros((1, 5)),
+        "source": "ddvi",
+        "iteration": 1,
+        "converged": True,
+    }
     cmd, gain = next_seq.get("cmd/lqr/att", 0), next_seq.get("ctrl/lqr/gains", 0)
     ctrl = {"src": "ctrl-lqr", "boot": boots["cmd/lqr/att"]}
     nav = {"src": "nav-lqr", "boot": boots.get("stats/nav-lqr", boots["nav/lqr/state"])}
@@ -67,8 +73,9 @@ def _attack(out: Path, info: dict[str, Any]) -> int:
     """Watch the run as the observer; once it has flown a third of an orbit, put every
     forgery with the stolen credentials of ctrl-lqr and nav-lqr.  Returns how many."""
     run, hub = info["run"], info["hub"]
-    creds = {u: load_credentials(credentials_path(out, u)) for u in (OBSERVER, "ctrl-lqr",
-                                                                     "nav-lqr")}  # fmt: skip
+    creds = {
+        u: load_credentials(credentials_path(out, u)) for u in (OBSERVER, "ctrl-lqr", "nav-lqr")
+    }
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     deadline = time.monotonic() + 60.0
     while True:  # the router opens just after the run folder is written
@@ -86,8 +93,9 @@ def _attack(out: Path, info: dict[str, Any]) -> int:
         open_session(_client(hub, creds["ctrl-lqr"])) as ctrl,
         open_session(_client(hub, creds["nav-lqr"])) as nav,
     ):
-        sub = watch.declare_subscriber(f"ddvi/{run}/**", lambda s: inbox.put(
-            (str(s.key_expr), s.payload.to_bytes())))  # fmt: skip
+        sub = watch.declare_subscriber(
+            f"ddvi/{run}/**", lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes()))
+        )
         while t < 1800.0:
             key, payload = inbox.get(timeout=60)
             topic = key.split("/", 2)[2]
@@ -159,8 +167,12 @@ def test_a_stolen_credential_speaks_only_for_its_own_topics(tmp_path: Path) -> N
     assert "`stats/nav-lqr` from `nav-lqr`: 1" in report
     assert "`ctrl/lqr/gains` from `ctrl-lqr`: 1" in report
     # `ddvi report` from the recording believes and refuses the same
-    r = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out)],
-                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "services.cli", "report", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     again = json.loads((out / "summary.json").read_text())
     assert again["outcome"]["refused"] == summary["outcome"]["refused"]

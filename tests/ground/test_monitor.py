@@ -93,8 +93,11 @@ class Monitor:
         with self.log_path.open("w") as log:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "services.ground.monitor", *args, "--out", str(self.out)],
-                cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
-            )  # fmt: skip
+                cwd=ROOT,
+                env=env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
         alive = wait_for_alive(self.session, run, ["monitor"], TIMEOUT)
         assert alive == {"monitor"}, self.log()
         # The subscriber is declared right after the token: wait until it matches here.
@@ -198,15 +201,27 @@ class Mission:
                         "lqr" if mode == "lqr" else ("exploring" if t < self.t_learn else "learned")
                     )
                     status = {
-                        "sc": sc, "mode": mode, "phase": phase, "samples": k, "intervals": k // 60,
-                        "rank": 0, "rank_needed": 34, "counters": {"iterations": 3},
-                    }  # fmt: skip
+                        "sc": sc,
+                        "mode": mode,
+                        "phase": phase,
+                        "samples": k,
+                        "intervals": k // 60,
+                        "rank": 0,
+                        "rank_needed": 34,
+                        "counters": {"iterations": 3},
+                    }
                     self.pub(f"ctrl-{sc}", topics.status_topic(sc), "status", status, t)
                 self.stats(t)
 
     def gains(self, sc: str, K: np.ndarray, source: str, t: float) -> None:
-        body = {"sc": sc, "K": K, "L": np.zeros((1, 5)), "source": source, "iteration": 7,
-                "converged": source != "initial"}  # fmt: skip
+        body = {
+            "sc": sc,
+            "K": K,
+            "L": np.zeros((1, 5)),
+            "source": source,
+            "iteration": 7,
+            "converged": source != "initial",
+        }
         self.pub(f"ctrl-{sc}", topics.gains_topic(sc), "gains", body, t)
 
     def stats(self, t: float, only: tuple[str, ...] | None = None) -> None:
@@ -320,8 +335,15 @@ def _check_files(out: Path, summary: dict[str, Any], last: int) -> None:
     """The figures, the CSV and report.md of the synthetic mission ending at step ``last``."""
     for name in summary["figures"]:
         assert (out / name).stat().st_size > 5000
-    assert {"hill_x.png", "hill_y.png", "hill_xy.png", "hill_xdot.png", "hill_ydot.png",
-            "sigma3.png", "gains.png"} <= set(summary["figures"])  # fmt: skip
+    assert {
+        "hill_x.png",
+        "hill_y.png",
+        "hill_xy.png",
+        "hill_xdot.png",
+        "hill_ydot.png",
+        "sigma3.png",
+        "gains.png",
+    } <= set(summary["figures"])
     with (out / "timeseries.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 * (last + 1) == summary["csv_rows"]
@@ -364,8 +386,10 @@ def test_sigterm_mid_run_gives_a_closed_recording_and_a_partial_report(monitor: 
 
 def test_kill_9_loses_at_most_the_last_flush_period(monitor: Monitor) -> None:
     mission = _publish_part(monitor, 40)
-    time.sleep(1.2)  # > FLUSH_PERIOD
-    monitor.proc.kill()
+    path = monitor.out / "recording.mcap"
+    # within a flush period of the last message, all of it is in the file...
+    assert wait_until(lambda: recorded_topics(path)[0] == mission.sent), recorded_topics(path)[0]
+    monitor.proc.kill()  # ... and a kill -9 takes none of it away
     monitor.proc.wait()
     data, _, complete = recorded_topics(monitor.out / "recording.mcap")
     assert not complete

@@ -60,15 +60,28 @@ def test_a_recorded_message_of_an_older_version_is_upgraded_on_replay() -> None:
     estimate as its measurement and a zero covariance; a current one replays as recorded."""
     from services.ground.replay import _counters, _message
 
-    old = {"schema": "nav", "version": 1, "seq": 3, "t": 10.0, "src": "nav-alpha",
-           "body": {"sc": "alpha", "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3], "altitude": 3e5,
-                    "valid": True}}  # fmt: skip
+    old = {
+        "schema": "nav",
+        "version": 1,
+        "seq": 3,
+        "t": 10.0,
+        "src": "nav-alpha",
+        "body": {
+            "sc": "alpha",
+            "x_hill": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3],
+            "altitude": 3e5,
+            "valid": True,
+        },
+    }
     counters = _counters()
     msg = _message("nav/alpha/state", old, counters)
     assert counters["rejected"] == 0 and msg.version == SCHEMAS["nav"].version
     assert np.array_equal(msg.body["z_hill"], msg.body["x_hill"]) and not msg.body["cov"].any()
-    current = {**old, "version": SCHEMAS["nav"].version,
-               "body": {**old["body"], "z_hill": [0.0] * 6, "cov": np.eye(6).tolist()}}  # fmt: skip
+    current = {
+        **old,
+        "version": SCHEMAS["nav"].version,
+        "body": {**old["body"], "z_hill": [0.0] * 6, "cov": np.eye(6).tolist()},
+    }
     msg = _message("nav/alpha/state", current, counters)
     assert not msg.body["z_hill"].any() and msg.body["cov"][0, 0] == 1.0
     broken = {**old, "body": {"sc": "alpha"}}  # no upgrade makes this a nav message
@@ -76,8 +89,14 @@ def test_a_recorded_message_of_an_older_version_is_upgraded_on_replay() -> None:
     assert _message("nav/alpha/state", {**old, "body": [1.0]}, counters) is None  # not a map
     newer = {**current, "version": SCHEMAS["nav"].version + 1}  # a later version's: unreadable
     assert _message("nav/alpha/state", newer, counters) is None
-    cmd = {"schema": "cmd", "version": 0, "seq": 1, "t": 10.0, "src": "ctrl-alpha",
-           "body": {"sc": "alpha", "sigma": [0.0, 0.0, 0.1], "for_t": 10.0}}  # fmt: skip
+    cmd = {
+        "schema": "cmd",
+        "version": 0,
+        "seq": 1,
+        "t": 10.0,
+        "src": "ctrl-alpha",
+        "body": {"sc": "alpha", "sigma": [0.0, 0.0, 0.1], "for_t": 10.0},
+    }
     assert _message("cmd/alpha/att", cmd, counters) is None  # an old one with no upgrade
     assert counters["rejected"] == 4 and counters["rejected.version"] == 2
 

@@ -136,8 +136,15 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
 
     dep = tmp_path / "kill9.toml"
     dep.write_text(LONG)
-    cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output",
-           str(tmp_path / "runs")]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "services.cli",
+        "run",
+        str(dep),
+        "--output",
+        str(tmp_path / "runs"),
+    ]
     launcher = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
     def kids() -> list[psutil.Process]:

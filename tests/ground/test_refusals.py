@@ -47,8 +47,15 @@ def test_a_flood_of_invented_names_stays_bounded_and_counted() -> None:
 def test_refusals_are_said_and_make_a_completed_run_exit_3() -> None:
     ground = Refusals()
     ground.accepts("stats/nav-lqr", _stats("nav-lqr", "environment", t=1200.0))
-    out = outcome(final_seen=True, sim_t=100.0, duration=100.0, period=50.0, services={},
-                  monitor={}, refused=ground.summary())  # fmt: skip
+    out = outcome(
+        final_seen=True,
+        sim_t=100.0,
+        duration=100.0,
+        period=50.0,
+        services={},
+        monitor={},
+        refused=ground.summary(),
+    )
     lines = "\n".join(outcome_lines(out))
     assert "1 messages refused by the ground" in lines
     assert "`stats/nav-lqr` from `nav-lqr`: 1" in lines and "service = 'environment'" in lines

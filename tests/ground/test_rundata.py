@@ -33,8 +33,9 @@ def test_hill_states_match_rv_to_hill() -> None:
     ac = chief_acceleration(rc, vc, j2=True)
     batch = hill_states(rc, vc, ac, rd, vd)
     for k in range(len(rc)):
-        np.testing.assert_allclose(batch[k], rv_to_hill(rc[k], vc[k], rd[k], vd[k], ac[k]),
-                                   rtol=1e-12, atol=1e-9)  # fmt: skip
+        np.testing.assert_allclose(
+            batch[k], rv_to_hill(rc[k], vc[k], rd[k], vd[k], ac[k]), rtol=1e-12, atol=1e-9
+        )
 
 
 def _ingest(

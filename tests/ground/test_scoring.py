@@ -19,7 +19,12 @@ from services.ground.campaign import run as campaign_run
 from services.ground.campaign.dispersions import spec_from_table
 from services.ground.campaign.report import stats_table
 from services.ground.rundata import GainRecord, RunData
-from services.ground.scoring import NOT_LEARNED_TEXT
+from services.ground.scoring import (
+    AS_GOOD_AS_LQR,
+    LEARNED_WITHIN_10_PERCENT,
+    NOT_LEARNED_TEXT,
+    final_error_below,
+)
 from services.ground.sweep import inprocess_rows, summary_rows
 from services.ground.sweep_table import markdown_table
 from services.interface.topics import log_topic
@@ -84,8 +89,9 @@ def _report_summary(tmp_path: Path, table: dict, flights: dict, monkeypatch) -> 
     for name, f in flights.items():
         data.sc(name).gains.extend(f["gains"])
         data.last_log[log_topic(f"ctrl-{name}")] = f["log"]
-    monkeypatch.setattr(RunData, "hill", lambda self, name: (flights[name]["t"],
-                                                             flights[name]["hill"]))  # fmt: skip
+    monkeypatch.setattr(
+        RunData, "hill", lambda self, name: (flights[name]["t"], flights[name]["hill"])
+    )
     monkeypatch.setattr(report, "write_figures", lambda *args: [])  # not what is scored
     return report.write_report(tmp_path, data, completed=True, monitor_counters={})
 
@@ -102,8 +108,13 @@ def _fake_in_process(flights: dict):
             switches = [g.t for g in f["gains"] if g.source == "ddvi"]
             x = f["hill"]
             ctrl = SimpleNamespace(K=np.asarray(last.K), source=last.source, learned_at=switches)
-            out[d.name] = {"t": f["t"], "x": x, "u": np.zeros(len(f["t"])), "log": [f["log"]],
-                           "controller": ctrl}  # fmt: skip
+            out[d.name] = {
+                "t": f["t"],
+                "x": x,
+                "u": np.zeros(len(f["t"])),
+                "log": [f["log"]],
+                "controller": ctrl,
+            }
         return out
 
     return run
@@ -190,3 +201,28 @@ def test_a_deputy_that_cannot_hold_its_slot_is_noted_by_every_path(
         assert can_hold is False and note.startswith(f"deputy {name!r} cannot hold a slot")
     others = [d for d in summary["deputies"] if d != name]
     assert all(summary["deputies"][d]["can_hold"] for d in others)
+
+
+def test_each_tables_success_is_one_named_rule_of_the_deputys_figures() -> None:
+    learned = LEARNED_WITHIN_10_PERCENT
+    assert learned.met(completed=True, learned=True, gain_error=0.05)
+    assert not learned.met(completed=True, learned=True, gain_error=0.1)  # strictly below
+    assert not learned.met(completed=True, learned=False, gain_error=0.01)  # K0 is not learned
+    assert not learned.met(completed=False, learned=True, gain_error=0.01)
+    assert not learned.met(completed=True, learned=None, gain_error=0.01)  # an LQR deputy
+    campaign = final_error_below(100.0)
+    assert campaign.name == "final error < 100 m"
+    assert campaign.met(completed=True, final_m=99.9) and not campaign.met(completed=True)
+    assert not campaign.met(completed=True, final_m=100.0)
+    twin = AS_GOOD_AS_LQR
+    assert twin.met(completed=True, final_m=9.0, lqr_final_m=1.0)  # the 10 m floor
+    assert twin.met(completed=True, final_m=40.0, lqr_final_m=20.0)
+    assert not twin.met(completed=True, final_m=41.0, lqr_final_m=20.0)
+    assert not twin.met(completed=True, final_m=float("nan"), lqr_final_m=20.0)
+    row = {
+        "completed": True,
+        "final_along_track_error_m": 3.0,
+        "learned": True,
+        "gain_error": 0.02,
+    }
+    assert learned.row_met(row) and not learned.row_met({**row, "gain_error": None})

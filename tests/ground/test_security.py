@@ -101,13 +101,18 @@ def _forgeries(run: str, seen: dict[str, bytes], t: float) -> list[tuple[str, by
         if (nav := seen.get(p + f"nav/{sc}/state")) is not None:
             msg = decode(nav)
             body = {**msg.body, "x_hill": msg.body["x_hill"] + 1e5}
-            out.append((p + f"nav/{sc}/state", encode("nav", body, seq=msg.seq + 1, t=t,
-                                                      src="nav-evil")))  # fmt: skip
+            out.append(
+                (p + f"nav/{sc}/state", encode("nav", body, seq=msg.seq + 1, t=t, src="nav-evil"))
+            )
         if (gains := seen.get(p + f"ctrl/{sc}/gains")) is not None:
             msg = decode(gains)
             body = {**msg.body, "K": np.zeros_like(msg.body["K"])}
-            out.append((p + f"ctrl/{sc}/gains", encode("gains", body, seq=msg.seq + 1, t=t,
-                                                       src=f"ctrl-{sc}")))  # fmt: skip
+            out.append(
+                (
+                    p + f"ctrl/{sc}/gains",
+                    encode("gains", body, seq=msg.seq + 1, t=t, src=f"ctrl-{sc}"),
+                )
+            )
         kill = {"kind": "kill", "target": f"ctrl-{sc}", "params": {}}
         out.append((p + "fault/kill", encode("fault", kill, seq=0, t=t, src="ground-1")))
     if (clock := seen.get(p + "clock")) is not None:
@@ -143,8 +148,9 @@ def _attack(out: Path, info: dict[str, Any], proc: subprocess.Popen) -> dict[str
             time.sleep(0.05)
     put = {"stolen": 0, "peer": 0, "rounds": 0}
     try:
-        sub = watch.declare_subscriber(f"ddvi/{run}/**", lambda s: inbox.put(
-            (str(s.key_expr), s.payload.to_bytes())))  # fmt: skip
+        sub = watch.declare_subscriber(
+            f"ddvi/{run}/**", lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes()))
+        )
         # strangers are refused at connect: no password, a wrong one, an unknown user
         for cred in (None, Credentials("ctrl-lqr", "guess"), Credentials("intruder", "x")):
             with pytest.raises(zenoh.ZError):
@@ -168,8 +174,11 @@ def _attack(out: Path, info: dict[str, Any], proc: subprocess.Popen) -> dict[str
                             t, final = max(t, msg.t), final or msg.body["final"]
                 if t > 0 and not final:
                     for key, payload in _forgeries(run, seen, t):
-                        for user, session in (("nav-lqr", nav), ("ctrl-ddvi", ctrl),
-                                              ("monitor", mon)):  # fmt: skip
+                        for user, session in (
+                            ("nav-lqr", nav),
+                            ("ctrl-ddvi", ctrl),
+                            ("monitor", mon),
+                        ):
                             if _wrong(user, key[len(f"ddvi/{run}/") :], payload):
                                 session.put(key, payload)
                                 put["stolen"] += 1
@@ -191,9 +200,10 @@ def _flight(records: list[Recorded], owners: bool = True) -> list[str]:
     return sorted(
         json.dumps([r.topic, r.data["seq"], {**r.data, "boot": None}], sort_keys=True)
         for r in records
-        if r.topic.startswith(FLIGHT) and "src" in r.data
+        if r.topic.startswith(FLIGHT)
+        and "src" in r.data
         and bool(may_publish(r.data["src"], r.topic)) == owners
-    )  # fmt: skip
+    )
 
 
 def _counters(records: list[Recorded], service: str) -> dict[str, int]:
@@ -271,8 +281,9 @@ def test_the_operator_and_the_observer_find_a_secure_run_by_its_folder(tmp_path:
         seen = _ddvi("monitor", "--run", str(out), "--count", "3", "--seconds", "30")
         assert seen.returncode == 0 and len(seen.stdout.splitlines()) == 3, seen.stderr
         assert all(f"ddvi/{info['run']}/" in line for line in seen.stdout.splitlines())
-        r = _ddvi("fault", info["run"], "panel", "lqr", "--area-factor", "0.9",
-                  "--output", str(root))  # fmt: skip
+        r = _ddvi(
+            "fault", info["run"], "panel", "lqr", "--area-factor", "0.9", "--output", str(root)
+        )
         assert r.returncode == 0 and "fault panel lqr:" in r.stdout, r.stdout + r.stderr
         # the observer's credentials do not put a fault: the same command with them is dropped
         (out / "security" / "ground-operator.json").write_text(

@@ -59,8 +59,13 @@ def test_each_impaired_table_is_its_own() -> None:
 
 def test_largest_learning_value_stops_at_the_first_failure() -> None:
     def row(value: float, learned: bool, error: float | None = 0.01) -> dict:
-        return {"value": value, "controller": "ddvi", "learned": learned, "completed": True,
-                "gain_error": error if learned else None}  # fmt: skip
+        return {
+            "value": value,
+            "controller": "ddvi",
+            "learned": learned,
+            "completed": True,
+            "gain_error": error if learned else None,
+        }
 
     rows = [row(0, True), row(60, True), row(120, False), row(180, True)]
     assert largest_learning_value(rows) == 60
@@ -74,12 +79,23 @@ def test_delay_sweep_runs_each_value(tmp_path: Path) -> None:
     dep = tmp_path / "short.toml"
     dep.write_text(SHORT)
     r = subprocess.run(
-        [sys.executable, "-m", "services.cli", "sweep", "delay", str(dep), "--values", "0",
-         "120", "--output", str(tmp_path)],
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "sweep",
+            "delay",
+            str(dep),
+            "--values",
+            "0",
+            "120",
+            "--output",
+            str(tmp_path),
+        ],
         capture_output=True,
         text=True,
         timeout=170,
-    )  # fmt: skip
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     folder = Path(r.stdout.strip().splitlines()[-1])
     rows = list(csv.DictReader((folder / "sweep.csv").read_text().splitlines()))
@@ -106,8 +122,20 @@ def test_a_point_no_attitude_can_hold_is_stated_before_its_run(
 
     monkeypatch.setattr(inprocess, "run_in_process", spy)
     deployment = str(Path(__file__).parents[2] / "deployments" / "realistic-nav.toml")
-    argv = ["sweep", "noise", deployment, "--values", "1", "--mismatch", "0.7", "--orbits", "2",
-            "--in-process", "--output", str(tmp_path)]  # fmt: skip
+    argv = [
+        "sweep",
+        "noise",
+        deployment,
+        "--values",
+        "1",
+        "--mismatch",
+        "0.7",
+        "--orbits",
+        "2",
+        "--in-process",
+        "--output",
+        str(tmp_path),
+    ]
     main(argv)
     (said,) = before_run
     names = [d["name"] for d in read_table("realistic-nav")["deputy"]]
@@ -146,8 +174,11 @@ def test_sweep_points_give_each_mismatch_its_orbits_and_refuse_a_wrong_count() -
     table = read_table(None)
     runs = sweep_points("noise", table, [0.0, 1.0], [1.0, 2.0], [40.0, 30.0])
     assert [(p["noise"], p["mismatch"], t["run"]["orbits"]) for p, t, _ in runs] == [
-        (0.0, 1.0, 40.0), (1.0, 1.0, 40.0), (0.0, 2.0, 30.0), (1.0, 2.0, 30.0),
-    ]  # fmt: skip
+        (0.0, 1.0, 40.0),
+        (1.0, 1.0, 40.0),
+        (0.0, 2.0, 30.0),
+        (1.0, 2.0, 30.0),
+    ]
     assert len({t["run"]["name"] for _, t, _ in runs}) == 4
     with pytest.raises(ValueError, match="one per --mismatch"):
         sweep_points("noise", table, [0.0], [1.0, 2.0], [40.0, 30.0, 20.0])
@@ -165,8 +196,9 @@ def test_short_noise_and_mismatch_sweep_in_process(tmp_path: Path) -> None:
     """Two orbits of the default mission at 0 and 1 m noise, nominal and 2x: the LQR rows are
     scored against the truth's K* (0 nominal, 0.68 at 2x: the nominal gain is that far from
     the truth's), the noise reaches the controllers, and the table and plot are written."""
-    folder, rows = sweep("noise", None, [0.0, 1.0], str(tmp_path), 2.0, mismatches=[1.0, 2.0],
-                         in_process=True)  # fmt: skip
+    folder, rows = sweep(
+        "noise", None, [0.0, 1.0], str(tmp_path), 2.0, mismatches=[1.0, 2.0], in_process=True
+    )
     assert [(r["noise"], r["mismatch"], r["deputy"]) for r in rows] == [
         (v, f, d) for f in (1.0, 2.0) for v in (0.0, 1.0) for d in ("lqr", "ddvi")
     ]

@@ -29,8 +29,9 @@ END_T = ORBITS * 5430.0  # s: about the short mission's last step (inside the mi
 
 def _deployment(tmp: Path, hang_timeout: float = 60.0) -> Path:
     text = DEPLOYMENT.read_text().replace("orbits = 40.0", f"orbits = {ORBITS}", 1)
-    text = text.replace("command_deadline = 20.0", "command_deadline = 2.0\n"
-                        f"hang_timeout = {hang_timeout}", 1)  # fmt: skip
+    text = text.replace(
+        "command_deadline = 20.0", f"command_deadline = 2.0\nhang_timeout = {hang_timeout}", 1
+    )
     path = tmp / f"trust-{hang_timeout:g}.toml"
     path.write_text(text)
     return path
@@ -59,8 +60,9 @@ def _seq_attack(proc: subprocess.Popen, folder: Path) -> None:
     once with 2^62; then the same body for the mission's last step under a boot of its own."""
     info = json.loads((folder / "bus.json").read_text())
     cred = load_credentials(credentials_path(folder, "ctrl-lqr"))
-    settings = BusSettings(mode="client", listen=[], connect=[info["hub"]], user=cred.user,
-                           password=cred.password)  # fmt: skip
+    settings = BusSettings(
+        mode="client", listen=[], connect=[info["hub"]], user=cred.user, password=cred.password
+    )
     prefix = f"ddvi/{info['run']}/"
     newest: list[Any] = []
     done = threading.Event()
@@ -75,8 +77,9 @@ def _seq_attack(proc: subprocess.Popen, folder: Path) -> None:
                 return
             genuine = newest[0]
             for seq in (2**64 - 1, 2**62):
-                forged = encode("cmd", genuine.body, seq=seq, t=clock.t, src="ctrl-lqr",
-                                boot=genuine.boot)  # fmt: skip
+                forged = encode(
+                    "cmd", genuine.body, seq=seq, t=clock.t, src="ctrl-lqr", boot=genuine.boot
+                )
                 session.put(prefix + "cmd/lqr/att", forged)
             # and a boot of its own, taken as a restarted controller's, for the mission's end
             body = {**genuine.body, "for_t": END_T}

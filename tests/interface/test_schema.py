@@ -208,8 +208,15 @@ def test_unknown_and_wrong_schema_and_version() -> None:
 
 def nav(**fields: Any) -> dict[str, Any]:
     """A nav body with fields replaced (a value of ... removes the field)."""
-    body = {"sc": "d", "x_hill": [0.0] * 6, "z_hill": [0.0] * 6, "cov": [[0.0] * 6] * 6,
-            "altitude": 300e3, "valid": True, **fields}  # fmt: skip
+    body = {
+        "sc": "d",
+        "x_hill": [0.0] * 6,
+        "z_hill": [0.0] * 6,
+        "cov": [[0.0] * 6] * 6,
+        "altitude": 300e3,
+        "valid": True,
+        **fields,
+    }
     return {k: v for k, v in body.items() if v is not ...}
 
 
@@ -398,8 +405,10 @@ def test_compiled_validators_take_every_sample(name: str) -> None:
     fast = codec_module._fast_decode(payload, name)
     assert fast is not None
     assert _same_message(fast, _by_field_kinds(lambda: decode(payload, name)))
-    plain = {k: np.asarray(v, dtype=float) if isinstance(v, list) else v
-             for k, v in SAMPLES[name].items()}  # fmt: skip
+    plain = {
+        k: np.asarray(v, dtype=float) if isinstance(v, list) else v
+        for k, v in SAMPLES[name].items()
+    }
     assert codec_module._COMPILED[name].wire(plain) is not None
     assert encode(name, plain, seq=1, t=2.0, src="svc") == _by_field_kinds(
         lambda: encode(name, plain, seq=1, t=2.0, src="svc")
@@ -486,10 +495,19 @@ def test_compiled_encode_agrees_with_field_kinds(payload: bytes) -> None:
 
 
 _NUMPY_VALUES = [
-    np.zeros(6, dtype=object), np.arange(6).astype("m8[ns]"), np.arange(6),
-    np.zeros(6, dtype=np.float32), np.zeros(6, dtype=">f8"), np.zeros(6, dtype=bool),
-    np.zeros((6, 1)), np.zeros(12)[::2], np.array(5.0), np.float32(5.0), 5, True,
-]  # fmt: skip
+    np.zeros(6, dtype=object),
+    np.arange(6).astype("m8[ns]"),
+    np.arange(6),
+    np.zeros(6, dtype=np.float32),
+    np.zeros(6, dtype=">f8"),
+    np.zeros(6, dtype=bool),
+    np.zeros((6, 1)),
+    np.zeros(12)[::2],
+    np.array(5.0),
+    np.float32(5.0),
+    5,
+    True,
+]
 
 
 @pytest.mark.parametrize("value", _NUMPY_VALUES, ids=repr)
@@ -509,15 +527,24 @@ def test_compiled_encode_agrees_on_numpy_values(field: str, value: Any) -> None:
 
 
 def test_compiled_encode_takes_numpy_scalars() -> None:
-    body = {"sc": np.str_("deputy1"), "x_hill": np.zeros(6), "z_hill": np.zeros(6),
-            "cov": np.zeros((6, 6)), "altitude": np.float64(3e5),
-            "valid": np.bool_(True)}  # fmt: skip
+    body = {
+        "sc": np.str_("deputy1"),
+        "x_hill": np.zeros(6),
+        "z_hill": np.zeros(6),
+        "cov": np.zeros((6, 6)),
+        "altitude": np.float64(3e5),
+        "valid": np.bool_(True),
+    }
     assert codec_module._COMPILED["nav"].wire(body) is not None
     payload = encode("nav", body, seq=1, t=2.0, src="svc")
     assert payload == _by_field_kinds(lambda: encode("nav", body, seq=1, t=2.0, src="svc"))
-    assert _by_field_kinds(
-        lambda: encode("clock", {**SAMPLES["clock"], "step": np.bool_(True)}, seq=1, t=2.0,
-                       src="svc")
-    ) == "bad_field"  # fmt: skip
+    assert (
+        _by_field_kinds(
+            lambda: encode(
+                "clock", {**SAMPLES["clock"], "step": np.bool_(True)}, seq=1, t=2.0, src="svc"
+            )
+        )
+        == "bad_field"
+    )
     with pytest.raises(MessageError, match=r"clock\.step: expected int, got bool"):
         encode("clock", {**SAMPLES["clock"], "step": np.bool_(True)}, seq=1, t=2.0, src="svc")

@@ -85,8 +85,10 @@ def test_basilisk_truth_matches_the_builtin_truth_over_one_orbit(basilisk, j2, d
     rel_builtin, _ = _fly(BuiltinTruth(builtin_dep), builtin_dep)
     gap = np.linalg.norm(rel_bsk - rel_builtin, axis=1)
     moved = np.linalg.norm(rel_builtin[-1] - rel_builtin[0])
-    print(f"j2={j2} drag={drag}: max |rho_bsk - rho_builtin| = {gap.max():.3g} m "
-          f"(final {gap[-1]:.3g} m; relative motion over the orbit {moved:.0f} m)")  # fmt: skip
+    print(
+        f"j2={j2} drag={drag}: max |rho_bsk - rho_builtin| = {gap.max():.3g} m "
+        f"(final {gap[-1]:.3g} m; relative motion over the orbit {moved:.0f} m)"
+    )
     assert gap.max() < tolerance
     # Basilisk's attitude is the command composed with each craft's own Hill frame (held over
     # a 1 s step while the Hill frame turns by n * 1 s, about 1.2 mrad)

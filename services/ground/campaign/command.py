@@ -52,8 +52,9 @@ def load_campaign(path: str) -> CampaignSpec:
         shipped = sorted(
             p.stem for d in deployment_dirs() for p in (d / "campaigns").glob("*.toml")
         )
-        raise CampaignError(f"{path}: no such campaign file or name; shipped: "
-                            + (", ".join(shipped) or "none"))  # fmt: skip
+        raise CampaignError(
+            f"{path}: no such campaign file or name; shipped: " + (", ".join(shipped) or "none")
+        )
     try:
         table = tomllib.loads(file.read_text())
     except tomllib.TOMLDecodeError as exc:
@@ -196,8 +197,11 @@ def run_campaign(
     done = store.done()
     todo = [i for i in range(spec.campaign.runs) if i not in done]
     if done:
-        print(f"ddvi campaign: resuming: {len(done)} of {spec.campaign.runs} runs are in the "
-              f"table already and skipped; {len(todo)} to run", file=sys.stderr)  # fmt: skip
+        print(
+            f"ddvi campaign: resuming: {len(done)} of {spec.campaign.runs} runs are in the "
+            f"table already and skipped; {len(todo)} to run",
+            file=sys.stderr,
+        )
     token = uuid.uuid4().hex[:8]
     tasks = {i: task(spec, i, mode) for i in todo}
     _say_holding(spec, tasks)
@@ -288,8 +292,11 @@ def _execute(spec: CampaignSpec, folder: Path, mode: str, args: argparse.Namespa
 
     with closing(ResultStore.open(folder / "results.sqlite", spec, mode, args.resume)) as store:
         if set(range(spec.campaign.runs)) <= store.done():
-            print(f"ddvi campaign: all {spec.campaign.runs} runs are in {folder} already; "
-                  "nothing to run (the report is written again)", file=sys.stderr)  # fmt: skip
+            print(
+                f"ddvi campaign: all {spec.campaign.runs} runs are in {folder} already; "
+                "nothing to run (the report is written again)",
+                file=sys.stderr,
+            )
             return
         try:
             with dask_client(args.workers, args.scheduler, args.dashboard) as client:
@@ -319,8 +326,11 @@ def campaign_command(args: argparse.Namespace) -> int:
             return _campaign(args)
     except Stopped as exc:
         end = "" if sys.stderr.isatty() else "\n"  # a plain progress line ends unterminated
-        print(f"{end}ddvi campaign: stopped by {exc}; its finished runs are in the table: the "
-              "same command with --resume continues it", file=sys.stderr)  # fmt: skip
+        print(
+            f"{end}ddvi campaign: stopped by {exc}; its finished runs are in the table: the "
+            "same command with --resume continues it",
+            file=sys.stderr,
+        )
         return 128 + exc.signum
 
 

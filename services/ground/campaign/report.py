@@ -19,6 +19,7 @@ import numpy as np
 from ddvi_core.learning_config import LearningConfig
 from services.config import controller_label
 from services.ground.campaign.dispersions import CampaignSpec
+from services.ground.scoring import final_error_below
 
 PERCENTILES = (50, 90, 95, 99)
 WORST = 5  # runs listed per controller
@@ -49,7 +50,9 @@ def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any
                     "can_hold": can_hold is None or bool(can_hold),
                     "note": r.get(f"{name}.note"),
                     "completed": bool(r["completed"]),
-                    "success": bool(r["completed"]) and final is not None and final < threshold,
+                    "success": final_error_below(threshold).met(
+                        completed=bool(r["completed"]), final_m=final
+                    ),
                 }
             )
     return out
