@@ -14,7 +14,7 @@ import math
 import sys
 from typing import Any, NoReturn
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+from services.exit_status import EXIT_FAIL, EXIT_USAGE
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -207,17 +207,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
-
-
-def seed(text: str) -> int:
-    """A seed argument: an integer in 0 .. 2**32 - 1 (numpy's seeds)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
-    if not 0 <= value < 2**32:
-        raise argparse.ArgumentTypeError(f"a seed lies in 0 .. 2**32 - 1, got {value}")
-    return value
 
 
 def folder_mode(text: str) -> int:

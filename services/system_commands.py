@@ -12,11 +12,22 @@ from typing import Any
 
 import numpy as np
 
-from services.cli import EXIT_FAIL, EXIT_OK, EXIT_USAGE, seed
+from services.exit_status import EXIT_FAIL, EXIT_OK, EXIT_USAGE
 
 
 def _rows(M: np.ndarray) -> list[list[float]]:
     return np.asarray(M, dtype=float).tolist()
+
+
+def seed(text: str) -> int:
+    """A seed argument: an integer in 0 .. 2**32 - 1 (numpy's seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"a seed lies in 0 .. 2**32 - 1, got {value}")
+    return value
 
 
 def _load(name: str):

@@ -40,7 +40,7 @@ from ddvi_core.model_fit import IntegralHistory
 from services.config import Deployment
 from services.flight.actuation import Actuation
 from services.flight.learners import Learner, LearnerExostate, make_learner
-from services.flight.phases import Phase, PhaseMachine
+from services.flight.phases import Gains, Phase, PhaseMachine
 from services.flight.relearning import ChangeWatch, Relearning
 from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
 
@@ -73,15 +73,13 @@ class Controller:
         self.exostate = LearnerExostate(self.problem, lrn.carries_density_ratio, density_ratio)
         self.learner: Learner | None = None
         if self.mode == "lqr":
-            self.K, self.L = lqr_gains(dep, self.deputy)
-            self.phases, self.source = PhaseMachine(Phase.LQR), "lqr"
+            self.phases = PhaseMachine(Phase.LQR, Gains(*lqr_gains(dep, self.deputy), "lqr"))
         else:
             q = self.exosystem[1].shape[0]
             self.learner = make_learner(dep, self.deputy, self.problem, q)
-            self.K, self.L = self.learner.initial_gain(), np.zeros((1, q))
-            self.phases, self.source = PhaseMachine(Phase.EXPLORING), "initial"
+            self.phases = PhaseMachine(Phase.EXPLORING, self.initial_gains())
             self.next_attempt = lrn.learn_at_orbits * self.orbit
-        self.iteration, self.converged = 0, self.mode == "lqr"
+        self.iteration = 0
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
         # samples before this are not the learner's (the initial transient; see rejoin)
@@ -97,6 +95,32 @@ class Controller:
     def phase(self) -> str:
         """The phase's word: "lqr", "exploring", "learned" or "relearning"."""
         return self.phases.current.value
+
+    @property
+    def K(self) -> np.ndarray:
+        """The feedback gain (1, 4) the phase flies."""
+        return self.phases.gains.K
+
+    @property
+    def L(self) -> np.ndarray:
+        """The feedforward gain (1, q) the phase flies."""
+        return self.phases.gains.L
+
+    @property
+    def source(self) -> str:
+        """Where the gains flown came from (``phases.Gains``)."""
+        return self.phases.gains.source
+
+    @property
+    def converged(self) -> bool:
+        return self.phases.converged
+
+    def initial_gains(self) -> Gains:
+        """K0 and no feedforward, what a learner explores on."""
+        assert self.learner is not None
+        return Gains(
+            self.learner.initial_gain(), np.zeros((1, self.exosystem[1].shape[0])), "initial"
+        )
 
     @property
     def u(self) -> float:
@@ -174,7 +198,8 @@ class Controller:
         elif learned and self.watch.alarm:
             learn_log = self.start_relearning(t)
         elif learned and self.learner is not None and self.learner.station is not None:
-            self.L, learn_log = self.learner.station.step(t, self.L, self.learning_window(t))
+            L, learn_log = self.learner.station.step(t, self.L, self.learning_window(t))
+            self.phases.trim(L)
         self.command(t, x, v, altitude)
         return learn_log
 
@@ -201,12 +226,9 @@ class Controller:
             since,
             window,
         )
-        self.phases.move(Phase.RELEARNING)
-        self.converged, self.source = False, "initial"  # flying K0 again until it re-learns
         self.exostate.add_density_ratio()
-        q = self.exosystem[1].shape[0]
-        self.K, self.L = learner.initial_gain(), np.zeros((1, q))
-        learner.store = learner.new_store(q)
+        self.phases.move(Phase.RELEARNING, self.initial_gains())  # K0 until it re-learns
+        learner.store = learner.new_store(self.exosystem[1].shape[0])
         self.collect_from = since
         self.next_attempt = since + window
         return (
@@ -254,13 +276,12 @@ class Controller:
         if before is not None:
             before.failures += 1
             if before.failures >= lrn.relearn_max_attempts:
-                self.K, self.L, self.exostate.exosystem = before.K, before.L, before.exosystem
+                self.exostate.exosystem = before.exosystem
                 self.learner.store = before.store
                 self.rank, self.rank_needed = before.rank
                 self.relearning = None
                 self.watch.disarm()
-                self.phases.move(Phase.LEARNED)
-                self.source, self.converged = "fallback", True
+                self.phases.move(Phase.LEARNED, Gains(before.K, before.L, "fallback"))
                 self.abandoned_at.append(t)
                 return (
                     f"{why}; re-learning abandoned after {before.failures} attempts: flying "
@@ -295,12 +316,10 @@ class Controller:
         if attempt.refused is not None:
             return self.learning_failed(t, f"learning at t = {t:.0f} s {attempt.refused}")
         r, info = attempt.result, attempt.info
-        self.K, self.L = r.K, r.L
         self.result = r
         relearned = self.relearning is not None
-        self.phases.move(Phase.LEARNED)
-        self.source = learner.source
-        self.iteration, self.converged = info.get("iterations", 0), True
+        self.phases.move(Phase.LEARNED, Gains(r.K, r.L, learner.source))
+        self.iteration = info.get("iterations", 0)
         self.relearning = None
         self.learned_at.append(t)
         self.learn_info = {"wall_s": time.perf_counter() - t0, **info}

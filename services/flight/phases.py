@@ -4,12 +4,19 @@ An LQR deputy stays in ``lqr``.  A learning deputy starts ``exploring`` (K0 and 
 exploration, collecting for its learner), is ``learned`` once a gain is taken, and with
 ``learning.relearn`` goes ``relearning`` (K0 and the exploration again) when its change
 detector sees the plant change; from there it is ``learned`` again, on the new gains or, when
-re-learning fails too often, on the gains of before the detection.
+re-learning fails too often, on the gains of before the detection.  The phase in force holds
+the gains it flies (``Gains``: K, L and their source), so that no move changes one without
+the other.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
 from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
 
 
 class Phase(StrEnum):
@@ -29,25 +36,71 @@ TRANSITIONS: dict[tuple[Phase, Phase], str] = {
 """Every move a controller may make, with what makes it; the LQR never moves."""
 
 
+SOURCES: dict[Phase, tuple[str, ...] | None] = {
+    Phase.LQR: ("lqr",),
+    Phase.EXPLORING: ("initial",),
+    Phase.RELEARNING: ("initial",),
+    Phase.LEARNED: None,  # a learner's name, or "fallback"
+}
+"""The sources of the gains each phase flies (None: any but the others')."""
+
+
 class PhaseTransitionError(RuntimeError):
     """A move the controller's phases do not allow: a bug in the controller, not bad input."""
 
 
+@dataclass(frozen=True)
+class Gains:
+    """What a phase flies, u = -K x + L v: K (1, n), L (1, q), and where they came from (a
+    ``gains`` message's source: "lqr", "initial" for K0 while exploring, the learner's name,
+    or "fallback" for the gains of before a re-learning that failed)."""
+
+    K: NDArray[np.float64]
+    L: NDArray[np.float64]
+    source: str
+
+
 class PhaseMachine:
-    """The phase in force; :meth:`move` is the only way to change it."""
+    """The phase in force and the gains it flies; :meth:`move` is the only way to change the
+    phase, and it changes the gains with it.  Whether the gains are converged follows from
+    the phase."""
 
-    def __init__(self, start: Phase) -> None:
+    def __init__(self, start: Phase, gains: Gains) -> None:
         self.current = start
+        self.gains = self._checked(start, gains)
 
-    def move(self, to: Phase) -> None:
-        """Enter phase ``to``; raises PhaseTransitionError if TRANSITIONS has no such move."""
+    def move(self, to: Phase, gains: Gains) -> None:
+        """Enter phase ``to`` flying ``gains``; raises PhaseTransitionError if TRANSITIONS
+        has no such move or the phase does not fly gains of that source."""
         if (self.current, to) not in TRANSITIONS:
             allowed = [str(b) for a, b in TRANSITIONS if a == self.current] or ["none"]
             raise PhaseTransitionError(
                 f"controller phase {self.current!s} cannot move to {to!s} (from "
                 f"{self.current!s} it may move to: {', '.join(allowed)})"
             )
+        self.gains = self._checked(to, gains)
         self.current = to
+
+    def trim(self, L: NDArray[np.float64]) -> None:
+        """The feedforward gain trimmed on station: the phase, K and the source unchanged."""
+        self.gains = dataclasses.replace(self.gains, L=L)
+
+    @staticmethod
+    def _checked(phase: Phase, gains: Gains) -> Gains:
+        sources = SOURCES[phase]
+        others = {s for p, said in SOURCES.items() if p is not phase and said for s in said}
+        if (sources is not None and gains.source not in sources) or (
+            sources is None and gains.source in others
+        ):
+            raise PhaseTransitionError(
+                f"controller phase {phase!s} cannot fly {gains.source!r} gains"
+            )
+        return gains
+
+    @property
+    def converged(self) -> bool:
+        """Flying gains that are not explored on: the LQR's, or learned ones."""
+        return self.current in (Phase.LQR, Phase.LEARNED)
 
     @property
     def exploring(self) -> bool:

@@ -5,16 +5,25 @@ wait passed); on a stop request, once what is queued has been recorded (bounded)
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from services.ground.monitor import Monitor
+from services.ground.rundata import RunData
 
 log = logging.getLogger("ddvi.monitor")
 
 FINAL_WAIT = 5.0  # s to wait for the other services' final stats after the final clock
 FINAL_GRACE = 0.25  # s to keep recording once every service has finished
 STOP_DRAIN = 1.0  # s to keep recording what is already queued after SIGTERM
+
+
+class Recording(Protocol):
+    """What the ending looks at of the recording loop (the monitor's)."""
+
+    data: RunData
+
+    def pending(self) -> list[str]:
+        """The services still to finish."""
+        ...
 
 
 class Ending:
@@ -28,7 +37,7 @@ class Ending:
         self.stop_deadline: float | None = None
         self.waited_for: dict[str, int] = {}  # unrecorded messages the ending waited for
 
-    def check(self, mon: Monitor, stop: bool, idle: bool, now: float) -> bool | None:
+    def check(self, mon: Recording, stop: bool, idle: bool, now: float) -> bool | None:
         """None to go on recording; else whether the mission completed."""
         if mon.data.final_seen:
             if self.final_deadline is None:

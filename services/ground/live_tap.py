@@ -31,7 +31,7 @@ from services.ground.credentials import RunNotFoundError, find_run, run_folder
 from services.ground.live import LiveServer, live_server
 from services.ground.live_address import LiveError, check_live, exposure_warning
 from services.ground.recording import RECORDING
-from services.ground.tap import run_keyexpr
+from services.ground.run_keys import run_keyexpr
 from services.interface import MessageError, decode, schema_for_topic, unpack_batch
 
 log = logging.getLogger("ddvi.live")

@@ -8,7 +8,7 @@ service's stats say it sent is in it.  It is not when:
 - samples were still queued when the recording closed (``queued_at_close``: the monitor records
   its backlog for a bounded time only);
 - the recording stopped before the run ended (``recording``: its disk was nearly full, or a
-  write failed; ``services.ground.recording.RecordingStop``);
+  write failed; ``RecordingStop``);
 - ``ddvi report`` read a recording cut short, up to its last complete chunk (``cut_short``).
 
 ``record_block`` is summary.json's ``outcome.record``; ``record_line`` says it on report.md's
@@ -21,12 +21,23 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from services.ground.disk import size_text
 
-if TYPE_CHECKING:  # the recorder's module (mcap) is not needed to read a summary
-    from services.ground.recording import RecordingStop
+
+@dataclass(frozen=True)
+class RecordingStop:
+    """The recording stopped before the run ended: its disk was nearly full (``footer``: it
+    was closed whole, summary and footer written) or a write failed (it is cut back to its
+    last whole record: ``ddvi report`` repairs it where there is room)."""
+
+    path: str
+    why: str  # in a few words: the disk nearly full, or the error of the write that failed
+    space_left: int | None  # bytes left on its disk when it stopped
+    at_t: float  # simulated time of the last message in the file, s
+    messages: int  # messages in the file
+    footer: bool
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
 from services.ground.disk import REPORT_ROOM, RecordFile, size_text, space_left
-from services.ground.record import RecordGaps
+from services.ground.record import RecordGaps, RecordingStop
 from services.interface import (
     REASONS,
     SCHEMAS,
@@ -170,20 +170,6 @@ def rejected_record(key: str, payload: bytes, err: MessageError) -> dict[str, An
         "payload_b64": base64.b64encode(payload[:MAX_RAW]).decode(),
         "truncated": len(payload) > MAX_RAW,
     }
-
-
-@dataclass(frozen=True)
-class RecordingStop:
-    """The recording stopped before the run ended: its disk was nearly full (``footer``: it
-    was closed whole, summary and footer written) or a write failed (it is cut back to its
-    last whole record: ``ddvi report`` repairs it where there is room)."""
-
-    path: str
-    why: str  # in a few words: the disk nearly full, or the error of the write that failed
-    space_left: int | None  # bytes left on its disk when it stopped
-    at_t: float  # simulated time of the last message in the file, s
-    messages: int  # messages in the file
-    footer: bool
 
 
 class Recorder:

@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ddvi_core.lqr import relative_gain_error
 from services.config import Deployment, Deputy
 from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
 
@@ -146,6 +145,9 @@ class DeputyOutcome:
 def scored_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
     """|K - K_ref| / |K_ref| (Frobenius norms); None without K or a reference, or with a shape
     or zero reference that makes no sense of it."""
+    # scipy (ddvi_core.lqr's) only when a report scores: the monitor loads this at its start
+    from ddvi_core.lqr import relative_gain_error
+
     if K is None or K_ref is None:
         return None
     K = np.asarray(K, float)

@@ -24,7 +24,6 @@ import argparse
 import contextlib
 import json
 import queue
-import re
 import sys
 import time
 from collections.abc import Callable
@@ -38,7 +37,8 @@ from services.bus.security import OBSERVER
 from services.ground import lifecycle
 from services.ground.credentials import RunNotFoundError, find_run
 from services.ground.live_address import LIVE_DEFAULT
-from services.interface import TOPOLOGY, MessageError, decode, unpack_batch
+from services.ground.run_keys import run_keyexpr
+from services.interface import MessageError, decode, unpack_batch
 
 
 def add_monitor_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -103,43 +103,6 @@ def format_sample(key: str, payload: bytes) -> list[str]:
         body = _compact(msg.body)
         lines.append(f"{key} {msg.schema} t={msg.t:.3f} src={msg.src} seq={msg.seq} {body}")
     return lines
-
-
-def topic_patterns() -> list[str]:
-    """Every topic of the topology as a key expression (its placeholders as ``*``)."""
-    return [re.sub(r"<[a-z]+>", "*", route.topic) for route in TOPOLOGY]
-
-
-def run_keyexpr(run: str, pattern: str | None) -> str:
-    """The key expression of ``pattern`` on run ``run`` (``*`` for any run): a topic pattern
-    (``ctrl/*/status``) is put below ``ddvi/<run>/``; a full one (``ddvi/*/ctrl/*/status``)
-    has its run part made ``run``.  ValueError (one line) when it names another run or
-    matches no topic of the topology."""
-    if not pattern:
-        return f"ddvi/{run}/**"
-    parts = pattern.strip("/").split("/")
-    if parts[0] == "ddvi" and len(parts) > 1:
-        named = parts[1]
-        if named not in ("*", "**", run) and run != "*":
-            raise ValueError(
-                f"{pattern!r} names run {named!r}, not this run ({run!r}): give "
-                "a topic pattern such as 'ctrl/*/status'"
-            )
-        if named != "**":
-            run = named if run == "*" else run
-        parts = (["**"] if named == "**" else []) + parts[2:]
-    topics = "/".join(parts) or "**"
-    try:
-        key = zenoh.KeyExpr(topics)
-    except zenoh.ZError:
-        raise ValueError(
-            f"{pattern!r} is not a key expression (segments separated by /, "
-            "* for one segment, ** for any number)"
-        ) from None
-    known = topic_patterns()
-    if not any(key.intersects(zenoh.KeyExpr(t)) for t in known):
-        raise ValueError(f"{pattern!r} matches no topic; the topics are {', '.join(known)}")
-    return f"ddvi/{run}/{topics}"
 
 
 def _tap_settings(args: argparse.Namespace) -> tuple[BusSettings, str]:

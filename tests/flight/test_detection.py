@@ -183,15 +183,14 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
     from types import SimpleNamespace
 
     from services.flight.control import Controller
-    from services.flight.phases import Phase
+    from services.flight.phases import Gains, Phase
 
     table = read_table("panel-fault")
     table["deputy"][1]["learning"]["relearn_max_attempts"] = 3
     dep = deployment_from_table(table)
     ctrl = Controller(dep, "ddvi")
     K, L = np.array([[-0.02, 4e-4, -0.9, -9.0]]), np.full((1, 5), 1e-3)
-    ctrl.K, ctrl.L, ctrl.source = K, L, "ddvi"
-    ctrl.phases.move(Phase.LEARNED)
+    ctrl.phases.move(Phase.LEARNED, Gains(K, L, "ddvi"))
     ctrl.learned_at = [1000.0]
     alarm = SimpleNamespace(mean=np.array([0.1]), bound=np.array([0.05]), statistic=2.0)
     ctrl.watch.detector = alarm

@@ -11,7 +11,7 @@ import pytest
 from services.config import DeploymentError, deployment_from_table, load_deployment, read_table
 from services.flight.control import Controller
 from services.flight.inprocess import run_in_process
-from services.flight.phases import Phase
+from services.flight.phases import Gains, Phase
 from services.flight.station import StationKeeping
 from services.flight.trim import StationTrim
 from services.interface import decode, encode
@@ -174,7 +174,7 @@ def _learned(dep, name="fit"):
 
     ctrl = Controller(dep, name)
     p = true_problem(dep, ctrl.deputy)
-    ctrl.phases.move(Phase.LEARNED)
+    ctrl.phases.move(Phase.LEARNED, Gains(ctrl.K, ctrl.L, ctrl.learner.source))
     ctrl.result = SimpleNamespace(model=SimpleNamespace(A=p.A, B=p.B))
     store = ctrl.learner.new_store(ctrl.exosystem[1].shape[0])
     ctrl.learner.station = StationKeeping(
@@ -191,7 +191,8 @@ def _learned(dep, name="fit"):
 
 def _refit(ctrl, t: float) -> str:
     """Refit the learned controller's feedforward at t (s), as its step does when due."""
-    ctrl.L, log = ctrl.learner.station.refit(t, ctrl.L, ctrl.learning_window(t))
+    L, log = ctrl.learner.station.refit(t, ctrl.L, ctrl.learning_window(t))
+    ctrl.phases.trim(L)
     return log
 
 
@@ -201,7 +202,8 @@ def test_a_refresh_waits_for_a_stay_of_refresh_orbits_and_fits_that_stay_only():
     dep = load_deployment("realistic-nav")
     ctrl = _learned(dep)
     P = 2.0 * orbit_period(dep)  # refresh_orbits = 2
-    ctrl.L = L = np.full_like(ctrl.L, 0.01)  # a refit of still, unforced data gives L = 0
+    L = np.full_like(ctrl.L, 0.01)  # a refit of still, unforced data gives L = 0
+    ctrl.phases.trim(L)
     _on_station(ctrl, np.arange(0.0, 3000.0, 10.0))  # a fly-through
     _on_station(ctrl, np.arange(3000.0, 5000.0, 10.0), y=5000.0)  # off station: a gap
     stay = 5000.0

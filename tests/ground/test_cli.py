@@ -171,6 +171,15 @@ def test_a_command_imports_only_what_it_needs():
     assert r.returncode == 0 and r.stdout.split() == ["30.0", "False", ground], r.stdout + r.stderr
 
 
+def test_the_monitor_starts_without_the_mathematics():
+    """The monitor records from its start with the bus, the codec and MCAP; scipy (the report's
+    reference gains) loads only when it scores, at the end: a process of the mission each
+    library would cost."""
+    code = "import sys, services.ground.monitor; print('scipy' in sys.modules)"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.split() == ["False"], r.stdout + r.stderr
+
+
 def test_the_whole_parser_has_every_commands_arguments():
     """Built for no command in particular, the parser still has every command's arguments."""
     from services.cli import build_parser

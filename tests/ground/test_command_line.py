@@ -20,10 +20,10 @@ from services.config import deployment_from_table, read_table
 from services.config.files import DEPLOYMENTS_DIR, campaign_file, system_example
 from services.ground import netns
 from services.ground.lifecycle import log_reason
+from services.ground.run_keys import run_keyexpr
 from services.ground.rundata import RunData
 from services.ground.status import Status
 from services.ground.sweep import _point_text, sweep_points, unlearned_points
-from services.ground.tap import run_keyexpr
 
 ROOT = DEPLOYMENTS_DIR.parent
 
