@@ -13,6 +13,7 @@ from services.bus.endpoint import Bus, queue_handler
 from services.bus.guards import SEQUENCE_REASONS, SequenceGuard, SequenceGuards
 from services.bus.links import LinkModel
 from services.bus.liveliness import router_answers, wait_for_alive, wait_for_gone, watch_alive
+from services.bus.reception import worth_saying
 from services.bus.session import (
     DEFAULT_HUB,
     EPHEMERAL_LOOPBACK,
@@ -59,5 +60,6 @@ __all__ = [
     "wait_for_alive",
     "wait_for_gone",
     "watch_alive",
+    "worth_saying",
     "zenoh_config",
 ]

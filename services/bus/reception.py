@@ -86,7 +86,7 @@ class Reception:
             self.counts["rejected"] += 1
             self.counts[f"rejected.{reason}"] += 1
             n = self.counts[f"rejected.{reason}"]
-        if n <= 10 or n % 1000 == 0:
+        if worth_saying(n):
             log.warning("%s: rejected %s (%s, #%d): %s", self.service, key, reason, n, text)
 
     def now(self, link: LinkModel) -> float:
@@ -98,6 +98,12 @@ class Reception:
         if key not in self.rule_cache:
             self.rule_cache[key] = select_rule(self.rules, publisher, topic)
         return self.rule_cache[key]
+
+
+def worth_saying(n: int) -> bool:
+    """Whether the ``n``-th of a kind of refusal or error is logged: the first ten, then every
+    1000th (a flood must not flood the log)."""
+    return n <= 10 or n % 1000 == 0
 
 
 @dataclass

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from services.bus.session import key_prefix
+from services.bus.session import BusSettings, key_prefix
 from services.interface.topics import alive_topic, topics_published_by
 
 OPERATOR = "ground-operator"
@@ -73,6 +73,19 @@ class Credentials:
     def new(user: str) -> Credentials:
         """Fresh credentials for ``user``: 32 random URL-safe bytes of password."""
         return Credentials(user, secrets.token_urlsafe(32))
+
+    def client(self, connect: list[str], lease_ms: int = 0) -> BusSettings:
+        """The settings of a client with these credentials, of ``connect`` (the hub first),
+        listening on nothing (``lease_ms`` 0: zenoh's lease)."""
+        return BusSettings(
+            mode="client",
+            listen=[],
+            connect=connect,
+            user=self.user,
+            password=self.password,
+            tls=self.tls,
+            lease_ms=lease_ms,
+        )
 
 
 _NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)

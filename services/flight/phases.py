@@ -36,13 +36,13 @@ TRANSITIONS: dict[tuple[Phase, Phase], str] = {
 """Every move a controller may make, with what makes it; the LQR never moves."""
 
 
-SOURCES: dict[Phase, tuple[str, ...] | None] = {
-    Phase.LQR: ("lqr",),
-    Phase.EXPLORING: ("initial",),
-    Phase.RELEARNING: ("initial",),
-    Phase.LEARNED: None,  # a learner's name, or "fallback"
+SOURCES: dict[Phase, str] = {
+    Phase.LQR: "lqr",
+    Phase.EXPLORING: "initial",
+    Phase.RELEARNING: "initial",
 }
-"""The sources of the gains each phase flies (None: any but the others')."""
+"""The source of the gains each phase but ``learned`` flies; ``learned`` flies any other (a
+learner's name, or "fallback")."""
 
 
 class PhaseTransitionError(RuntimeError):
@@ -87,11 +87,9 @@ class PhaseMachine:
 
     @staticmethod
     def _checked(phase: Phase, gains: Gains) -> Gains:
-        sources = SOURCES[phase]
-        others = {s for p, said in SOURCES.items() if p is not phase and said for s in said}
-        if (sources is not None and gains.source not in sources) or (
-            sources is None and gains.source in others
-        ):
+        own = SOURCES.get(phase)
+        theirs = gains.source == own if own is not None else gains.source not in SOURCES.values()
+        if not theirs:
             raise PhaseTransitionError(
                 f"controller phase {phase!s} cannot fly {gains.source!r} gains"
             )

@@ -51,7 +51,6 @@ class NavSample:
     z (6,) and the truth it measured (6,), all in navigation's frame (m, m/s), and the
     deputy's altitude (m); ``biased``: the bias faults that came into force at it."""
 
-    t: float
     truth: np.ndarray
     x: np.ndarray
     z: np.ndarray
@@ -104,4 +103,4 @@ class RelativeNavigation:
             z = z + self.rng.normal(0.0, 1.0, 6) * self.sigma
         x, cov = (z, self.R) if self.filter is None else self.filter.update(t, z)
         altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
-        return NavSample(t, truth, x, z, cov, altitude, due)
+        return NavSample(truth, x, z, cov, altitude, due)

@@ -237,15 +237,7 @@ def rate_budget(dep: Deployment, run: str) -> RateBudget:
 def bus_settings(dep: Deployment, hub: str, credentials: Credentials | None = None) -> BusSettings:
     connect, lease = [hub, *dep.bus.connect], dep.session_lease_ms()
     if credentials is not None:  # a secure bus: the hub's client, listening on nothing
-        return BusSettings(
-            mode="client",
-            listen=[],
-            connect=connect,
-            user=credentials.user,
-            password=credentials.password,
-            tls=credentials.tls,
-            lease_ms=lease,
-        )
+        return credentials.client(connect, lease)
     if dep.bus.mode == "client":
         return BusSettings(mode="client", listen=[], connect=connect, lease_ms=lease)
     return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect, lease_ms=lease)

@@ -91,14 +91,7 @@ def client_settings(
     connect = [hub, *extra]
     if credentials is None:
         return BusSettings(mode="peer", listen=["tcp/127.0.0.1:0"], connect=connect)
-    return BusSettings(
-        mode="client",
-        listen=[],
-        connect=connect,
-        user=credentials.user,
-        password=credentials.password,
-        tls=credentials.tls,
-    )
+    return credentials.client(connect)
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ from typing import Any
 
 import orjson
 
+from services.bus import worth_saying
 from services.config import Deployment
 from services.ground.live_address import LiveAddress
 from services.ground.recording import (
@@ -151,7 +152,7 @@ class LiveServer:
 
     def _failed(self, what: str) -> None:
         n = self.counters["errors"] = self.counters["errors"] + 1
-        if n <= 10 or n % 1000 == 0:
+        if worth_saying(n):
             log.exception("live view: could not serve %s (#%d)", what, n)
 
     def message(self, topic: str, msg: Message) -> None:

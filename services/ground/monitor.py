@@ -57,7 +57,7 @@ from typing import Any
 
 import zenoh
 
-from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards
+from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards, worth_saying
 from services.flight.health import RECORDER_ACK_STEPS
 from services.flight.runtime import ServiceContext, run_service
 from services.ground.disk import LogFile
@@ -178,12 +178,15 @@ class Monitor:
         for part in parts or (value,):  # a batch is recorded message by message
             self.handle_message(topic, key, part, recv_ns)
 
+    def tally(self, key: str) -> int:
+        """Count one more ``key``; its count."""
+        n = self.counters[key] = self.counters.get(key, 0) + 1
+        return n
+
     def reject(self, topic: str, key: str, value: bytes, err: MessageError, recv_ns: int) -> None:
         assert self.recorder is not None
         self.counters["rejected"] += 1
-        self.counters[f"rejected.{err.reason}"] += 1
-        n = self.counters[f"rejected.{err.reason}"]
-        if n <= 10 or n % 1000 == 0:
+        if worth_saying(n := self.tally(f"rejected.{err.reason}")):
             log.warning("rejected %s (%s, #%d): %s", key, err.reason, n, err)
         self.recorder.rejected(topic, key, value, err, recv_ns, self.data.sim_t)
         if self.live is not None:
@@ -201,33 +204,28 @@ class Monitor:
             self.reject(topic, key, value, err, recv_ns)
             return
         rec.message(topic, msg, recv_ns)  # everything received is recorded
+        self.counters["recorded"] = rec.messages
         self.data.received(msg)  # and counted against its publisher's stats (claims)
         if self.live is not None:
             self.live.message(topic, msg)
         if msg.schema == "clock" and msg.src != TIME_MASTER:
-            n = self.counters["refused.clock"] = self.counters["refused.clock"] + 1
-            if n <= 10 or n % 1000 == 0:
+            if worth_saying(n := self.tally("refused.clock")):
                 log.warning(
                     "refused a clock from %r (only %s keeps time; #%d)", msg.src, TIME_MASTER, n
                 )
-            self.counters["recorded"] = rec.messages
             return
         if not self.data.refusals.accepts(topic, msg):  # its topic does not let it say that
             self.counters["refused.origin"] += 1
-            self.counters["recorded"] = rec.messages
             return
         if (why := self.guards.check(msg, topic, self.dropped_from)) is not None:
-            n = self.counters[f"ignored.{why}"] = self.counters[f"ignored.{why}"] + 1
-            if n <= 10 or n % 1000 == 0:
+            if worth_saying(n := self.tally(f"ignored.{why}")):
                 log.warning("not reported %s seq %d (%s, #%d)", key, msg.seq, why, n)
-            self.counters["recorded"] = rec.messages
             return
         try:
             self.data.ingest(topic, msg)
         except Exception:  # one odd message must not take the recording down
             self.counters["handler_errors"] += 1
             log.exception("could not use %s at t = %s", key, msg.t)
-        self.counters["recorded"] = rec.messages
         if msg.schema == "clock":
             self.acknowledge(msg)
 

@@ -10,7 +10,6 @@ restarts.<service>, kills)."""
 
 from __future__ import annotations
 
-import logging
 import queue
 import time
 from collections.abc import Callable
@@ -24,8 +23,6 @@ from services.ground import lifecycle
 from services.ground.processes import ServiceProcesses
 from services.interface import MessageError, decode, unpack_batch
 from services.interface.topics import CLOCK, log_topic, stats_topic
-
-log = logging.getLogger("ddvi.launcher")
 
 POLL = 0.2
 """Wall seconds between two looks at the services and the fault queue."""
