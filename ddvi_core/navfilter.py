@@ -169,3 +169,14 @@ class RelativeNavFilter:
         x[self.exact] = z[self.exact]
         self.t, self.x, self.P = t, x, P
         return x, P
+
+    def predict(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Propagate the estimate to time t (s, after the previous one) with no measurement (an
+        outage): returns the prediction (6,) and its covariance (6, 6), which grows by the
+        process noise.  The next :meth:`update` starts from it."""
+        if self.t is None:
+            raise ValueError("predict: no measurement yet to propagate")
+        Phi, Qd = self._model(t - self.t)
+        x, P = Phi @ self.x, Phi @ self.P @ Phi.T + Qd
+        self.t, self.x, self.P = t, x, 0.5 * (P + P.T)
+        return self.x, self.P

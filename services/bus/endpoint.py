@@ -254,7 +254,7 @@ class Bus:
         if self._closed:
             raise RuntimeError(f"bus of {self.service} is closed")
         route = Route(
-            self._rx, handler, expected_schema, link, observe, index=len(self._routes), lost=lost
+            self._rx, handler, expected_schema, link, observe, pattern=topic_pattern, lost=lost
         )
         if "*" not in topic_pattern:
             route.key = self.prefix + topic_pattern

@@ -9,6 +9,7 @@ Inputs/outputs:
     LinkModel(spec, seed, clock)
         offer(item, now) -> list     admit one item, return everything deliverable at ``now``
         release(now) -> list         return held items due at ``now``, in due order
+    link_seed(...)                   the seed of one subscription's link from one publisher
         counters -> dict             dropped, duplicated, reordered, delayed
 
 Semantics, per offered item (random draws in this fixed order):
@@ -31,11 +32,21 @@ from __future__ import annotations
 
 import heapq
 import random
+import zlib
 from typing import Any
 
 from services.interface.links import LinkSpec
 
 CLOCKS = ("sim", "wall")
+
+
+def link_seed(seed: int, subscriber: str, subscription: str, rule: int, publisher: str) -> int:
+    """The seed of the link model one subscriber's ``subscription`` (its topic pattern) gives
+    the messages of ``publisher`` under link rule number ``rule``: one stream per (subscriber,
+    subscription, rule, publisher), so that what one publisher's messages suffer does not
+    depend on how they interleave with another's, and a one-process executor can draw what
+    the services draw."""
+    return zlib.crc32(f"{seed}/{subscriber}/{subscription}/{rule}/{publisher}".encode())
 
 
 class LinkModel:

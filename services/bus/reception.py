@@ -14,7 +14,6 @@ import logging
 import math
 import threading
 import time
-import zlib
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,7 +22,7 @@ import zenoh
 
 from services.bus.budget import Dropped, RateBudget
 from services.bus.guards import ORIGIN_REASONS, SEQUENCE_REASONS, SequenceGuards, check_origin
-from services.bus.links import LinkModel
+from services.bus.links import LinkModel, link_seed
 from services.interface import REASONS, Message, MessageError, decode, unpack_batch
 from services.interface.links import LinkRule, select_rule
 from services.interface.topics import CLOCK
@@ -116,7 +115,7 @@ class Route:
     expected: str | Collection[str] | None
     link: LinkModel | None
     observe: Handler | None = None
-    index: int = 0  # the subscription's number on its bus (seeds its link models)
+    pattern: str = ""  # the subscription's topic pattern (seeds its link models)
     models: dict[tuple[int, str], LinkModel] = field(default_factory=dict)
     # what the link lets through, each once: its own losses may skip any number ahead
     guards: SequenceGuards = field(default_factory=lambda: SequenceGuards(ahead=None))
@@ -146,9 +145,7 @@ class Route:
             return None
         model = self.models.get((i, publisher))
         if model is None:
-            # one seeded stream per (subscriber, route, rule, publisher): what one publisher's
-            # messages suffer does not depend on how they interleave with another's
-            seed = zlib.crc32(f"{rx.seed}/{rx.service}/{self.index}/{i}/{publisher}".encode())
+            seed = link_seed(rx.seed, rx.service, self.pattern, i, publisher)
             model = LinkModel(rx.rules[i].spec, seed, rx.link_clock)
             self.models[(i, publisher)] = model
         return model

@@ -224,8 +224,12 @@ class Fault:
       it was.  The environment applies it; the controllers' model keeps the nominal panel.
     - ``bias``: the navigation solution's bias becomes ``position_bias`` (m, Hill x y z) and
       ``velocity_bias`` (m/s); the deputy's navigation service applies it.
+    - ``outage``: the deputy's navigation measures nothing for ``duration_orbits`` chief orbits
+      (a sensor or its link to the chief gone): its filter propagates, its covariance grows,
+      and its samples are marked not valid, which the controller does not fly on (its
+      stale-navigation rule, docs/health.md).  The deputy's navigation applies it.
 
-    ``ddvi fault RUN panel|bias DEPUTY ...`` injects the same at run time."""
+    ``ddvi fault RUN panel|bias|outage DEPUTY ...`` injects the same at run time."""
 
     at_orbits: float = 0.0
     kind: str = "panel"
@@ -234,9 +238,10 @@ class Fault:
     normal_angle: float | None = None
     position_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     velocity_bias: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    duration_orbits: float = 0.0
 
 
-FAULT_KINDS = ("panel", "bias")
+FAULT_KINDS = ("panel", "bias", "outage")
 
 
 @dataclass(frozen=True)

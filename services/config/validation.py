@@ -363,6 +363,13 @@ def _check_fault_values(w: str, f: Fault, backend: str) -> None:
         raise DeploymentError(
             f"{w}: area_factor and normal_angle belong to panel faults, not {f.kind!r}"
         )
+    if f.kind == "outage" and not (math.isfinite(f.duration_orbits) and f.duration_orbits > 0):
+        raise DeploymentError(
+            f"{w}.duration_orbits: an outage lasts a time > 0 (chief orbits), "
+            f"got {f.duration_orbits}"
+        )
+    if f.kind != "outage" and f.duration_orbits:
+        raise DeploymentError(f"{w}: duration_orbits belongs to outage faults, not {f.kind!r}")
     for key in ("position_bias", "velocity_bias"):
         if len(getattr(f, key)) != 3:
             raise DeploymentError(f"{w}.{key}: expected 3 values (Hill x, y, z)")
@@ -377,7 +384,7 @@ def _check_fault_values(w: str, f: Fault, backend: str) -> None:
 def check_fault(dep: Deployment, w: str, f: Fault) -> None:
     """One fault, whenever it comes: a known kind, a deputy of ``dep``, values in range.  A
     [[fault]] (``check_faults`` adds its time), and the one check of ``ddvi fault RUN
-    panel|bias`` against the run's deployment."""
+    panel|bias|outage`` against the run's deployment."""
     names = [d.name for d in dep.deputy]
     if f.kind not in FAULT_KINDS:
         raise DeploymentError(f"{w}.kind: expected one of {', '.join(FAULT_KINDS)}, got {f.kind!r}")
@@ -394,6 +401,11 @@ def check_faults(dep: Deployment) -> None:
             raise DeploymentError(
                 f"{w}.at_orbits: must lie in [0, run.orbits = {dep.run.orbits:g}), "
                 f"got {f.at_orbits}"
+            )
+        if f.kind == "outage" and f.at_orbits <= 0:
+            raise DeploymentError(
+                f"{w}.at_orbits: an outage starts after the first measurement (> 0), got "
+                f"{f.at_orbits}"
             )
         check_fault(dep, w, f)
 

@@ -19,8 +19,7 @@ import queue
 import time
 from collections.abc import Callable
 
-import numpy as np
-
+from services.flight.environment_model import CommandsInForce
 from services.flight.health import HANG_MARGIN, HangError, Waiting
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext
@@ -38,11 +37,13 @@ STOP_POLL = 0.25
 
 
 class CommandGate:
-    """The deputies' commands in force (``sigma`` (N, 3)) and the lock-step wait for them.
+    """What the environment's step takes from its inbox: the commands its links deliver, put
+    in ``commands`` (the commands in force), and in lock-step the wait for them.
 
     Parameters
     ----------
     ctx : the environment's context (its bus, deployment, stop request, log).
+    commands : the deputies' commands in force.
     inbox : where the subscriptions put ``(topic or tag, message)``: commands, commands
         observed by the link layer, commands lost to a flood, panel faults, controllers'
         presence.
@@ -56,6 +57,7 @@ class CommandGate:
     def __init__(
         self,
         ctx: ServiceContext,
+        commands: CommandsInForce,
         inbox: queue.SimpleQueue,
         present: set[str],
         counters: dict[str, int],
@@ -63,16 +65,12 @@ class CommandGate:
         recorder: RecorderLead,
     ) -> None:
         self.ctx, self.bus, self.inbox, self.present = ctx, ctx.bus, inbox, present
+        self.commands, self.latest_for_t = commands, commands.latest_for_t
         self.counters, self.on_fault, self.recorder = counters, on_fault, recorder
         dep = ctx.deployment
         self.run, self.fsw = dep.run, dep.run.fsw_period
         self.deputies = [d.name for d in dep.deputy]
-        # clipped to the attitude limit, per deputy too: the report says whose (outcome)
-        counters.update({f"clipped_commands.{sc}": 0 for sc in self.deputies})
-        self.limits = np.array([d.attitude_limit for d in dep.deputy])
-        self.sigma = np.zeros((len(self.deputies), 3))  # commands in force
         self.now = 0.0  # the step being taken
-        self.latest_for_t = dict.fromkeys(self.deputies, -math.inf)  # step of the one in force
         self.seen_for_t = dict.fromkeys(self.deputies, -math.inf)  # newest accounted for
         self.away_since: dict[str, float] = {}  # wall time each away controller went
         self.returned_at: dict[str, float] = {}  # step at which each came back
@@ -139,9 +137,7 @@ class CommandGate:
             else:
                 self.on_command(kind, msg, expected)
         if wait:
-            counters["missing_commands"] += sum(
-                expected[sc] >= 0 and self.latest_for_t[sc] < expected[sc] - 1e-6 for sc in deputies
-            )
+            self.commands.count_missing(expected)
         counters["controller_away_steps"] += len(set(deputies) - self.present)
 
     def awaited(self, t_k: float, expected: dict[str, float]) -> list[tuple[str, str]]:
@@ -175,34 +171,12 @@ class CommandGate:
         return until if until > time.monotonic() else None
 
     def on_command(self, kind: str, msg: Message, expected: dict[str, float]) -> None:
-        """A command delivered (put in force unless a replay), or observed by its link."""
-        counters = self.counters
-        sc = msg.body["sc"]
-        if sc not in self.latest_for_t:
-            counters["bad_commands"] += kind != OBSERVED
-            return
-        for_t = msg.body["for_t"]
-        if for_t > self.now + 1e-6:
-            # for a step this service has not clocked yet: no controller can have sent it (a
-            # stolen credential's, which would otherwise make every genuine command stale)
-            counters["bad_commands"] += kind != OBSERVED
-            return
-        if kind == OBSERVED:
+        """A command delivered (``CommandsInForce.deliver``), or observed by its link."""
+        sc, for_t = msg.body["sc"], msg.body["for_t"]
+        if kind != OBSERVED:
+            self.commands.deliver(sc, for_t, msg.body["sigma"], self.now, expected.get(sc, 0.0))
+        elif sc in self.seen_for_t and for_t <= self.now + 1e-6:
             self.seen_for_t[sc] = max(self.seen_for_t[sc], for_t)
-            return
-        if for_t <= self.latest_for_t[sc]:
-            counters["stale_commands"] += 1  # not newer than the one in force: a replay
-            return
-        if for_t < expected[sc] - 1e-6:
-            counters["late_commands"] += 1
-        i = self.deputies.index(sc)
-        s_cmd = msg.body["sigma"]
-        clipped = np.clip(s_cmd, -self.limits[i], self.limits[i])
-        if np.any(clipped != s_cmd):
-            counters["clipped_commands"] += 1
-            counters[f"clipped_commands.{sc}"] += 1
-        self.sigma[i] = clipped
-        self.latest_for_t[sc] = for_t
 
     def on_lost(self, topic: str, expected: dict[str, float]) -> None:
         """Its publisher flooded ``topic`` past its rate budget: the command the step waits

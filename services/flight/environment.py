@@ -27,7 +27,6 @@ import time
 
 import numpy as np
 
-from ddvi_core.orbit import dcm_to_mrp, hill_frame, mrp_to_dcm
 from services.bus import queue_handler, wait_for_alive, watch_alive
 from services.config import Fault, check_fault
 from services.flight.command_gate import (
@@ -39,21 +38,12 @@ from services.flight.command_gate import (
     RECORDER_PRESENCE,
     CommandGate,
 )
+from services.flight.environment_model import EnvironmentModel
 from services.flight.health import HangError
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext, run_service
-from services.flight.streams import FaultQueue
 from services.interface import CLOCK, EXOSTATE, RECORDED, Message, command_topic, truth_topic
-from services.model import (
-    ReentryError,
-    Truth,
-    describe_panel,
-    duration,
-    exostate,
-    on_grid,
-    open_truth,
-    panel_schedule,
-)
+from services.model import ReentryError, Truth, duration, on_grid, open_truth
 
 
 def main(ctx: ServiceContext) -> int:
@@ -113,8 +103,9 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
 
 
 class EnvironmentService:
-    """Propagates the truth one flight-software step at a time, with each deputy's command in
-    force (its ``CommandGate``), and publishes truth, exostate and clock at every sample.
+    """The environment's host: propagates its ``EnvironmentModel`` one flight-software step at
+    a time, with each deputy's command in force (its ``CommandGate``), and publishes truth,
+    exostate and clock at every sample.
 
     Parameters
     ----------
@@ -134,30 +125,21 @@ class EnvironmentService:
         present: set[str],
         recorder: RecorderLead,
     ) -> None:
-        self.ctx, self.truth = ctx, truth
+        self.ctx = ctx
         dep = self.dep = ctx.deployment
         self.run_cfg = run = dep.run
-        self.deputies = [d.name for d in dep.deputy]
-        self.names = ["chief", *self.deputies]
+        self.model = EnvironmentModel(dep, truth)
+        self.names = self.model.names
         self.dt, self.fsw, self.t_end = run.nav_period, run.fsw_period, duration(dep)
-        self.counters = {
-            "steps": 0,
-            "late_commands": 0,
-            "missing_commands": 0,
-            "stale_commands": 0,
-            "clipped_commands": 0,
-            "bad_commands": 0,
-            "controller_away_steps": 0,
-            "paused_steps": 0,
-            "recorder_waits": 0,
-            "panel_faults": 0,
-            "bad_faults": 0,
-        }
-        # panel faults: (deputy, area factor, normal angle), the deployment's at their times
-        self.panel_faults: FaultQueue[tuple[str, float | None, float | None]] = FaultQueue(
-            [(t, (sc, factor, angle)) for t, sc, factor, angle in panel_schedule(dep)]
+        self.counters = self.model.counters
+        self.counters.update(
+            controller_away_steps=0,
+            paused_steps=0,
+            recorder_waits=0,
         )
-        self.commands = CommandGate(ctx, inbox, present, self.counters, self.on_fault, recorder)
+        self.commands = CommandGate(
+            ctx, self.model.commands, inbox, present, self.counters, self.on_fault, recorder
+        )
         self.wall0 = time.monotonic()
         self.step = 0  # samples published so far (the clock's step)
 
@@ -166,9 +148,9 @@ class EnvironmentService:
     def run(self) -> int:
         """Propagate to the end of the mission (or a stop request, or a re-entry); returns 0
         if the mission completed, 3 if not, HANG_STATUS if lock-step hung on a service."""
-        run, truth, counters = self.run_cfg, self.truth, self.counters
-        state = truth.state
-        self.publish_sample(0.0, state, self.attitudes(state[None])[0], final=self.t_end <= 0)
+        run, model, counters = self.run_cfg, self.model, self.counters
+        state = model.truth.state
+        self.publish_sample(0.0, state, model.attitudes(state[None])[0], final=self.t_end <= 0)
         t_k = 0.0
         while t_k < self.t_end - 1e-6 and not self.ctx.stop.is_set():
             try:
@@ -177,16 +159,17 @@ class EnvironmentService:
                 status = self.ctx.give_up(exc)
                 self.ctx.publish_stats(t_k, {**counters, "completed": 0})
                 return status
-            self.apply_panel_faults(t_k)
             t_next = t_k + self.fsw
             try:
-                samples, traj = truth.step(t_k, self.commands.sigma)
+                samples, traj, said = model.step(t_k)
             except ReentryError as exc:
                 self.ctx.log("error", f"mission ended early: {exc}", t_k)
                 # tell every service the run is over at the last published sample
                 self.publish_clock(t_k, fsw_step=True, final=True)
                 break
-            sigma_BN = self.attitudes(traj)
+            for level, text in said:
+                self.ctx.log(level, text, t_k)
+            sigma_BN = model.attitudes(traj)
             # lock-step: the step's samples leave together, one zenoh sample per topic (each
             # message keeps its own seq and time); real time paces them one by one
             with self.ctx.bus.batch() if run.mode == "lockstep" else contextlib.nullcontext():
@@ -195,7 +178,6 @@ class EnvironmentService:
                     final = abs(t - self.t_end) < 1e-6
                     self.publish_sample(float(t), traj[k], sigma_BN[k], final=final)
             t_k = t_next
-            counters["steps"] += 1
             if counters["steps"] % run.status_every == 0:
                 self.ctx.publish_stats(t_k, counters)
         completed = t_k >= self.t_end - 1e-6
@@ -203,16 +185,6 @@ class EnvironmentService:
         return 0 if completed else 3
 
     # -- publishing ---------------------------------------------------------------------------
-
-    def attitudes(self, traj: np.ndarray) -> np.ndarray:
-        """sigma_BN (K, 1 + N, 3) of states (K, 1 + N, 6): the chief Hill-pointing, each
-        deputy Hill-pointing composed with its command in force (one batched call a step)."""
-        k, n = traj.shape[0], len(self.names)
-        HN = hill_frame(traj[..., :3].reshape(-1, 3), traj[..., 3:].reshape(-1, 3))
-        HN = HN.reshape(k, n, 3, 3)
-        BN = HN.copy()
-        BN[:, 1:] = mrp_to_dcm(self.commands.sigma) @ HN[:, 1:] if len(self.deputies) else HN[:, 1:]
-        return dcm_to_mrp(BN.reshape(-1, 3, 3)).reshape(k, n, 3)
 
     def publish_sample(self, t: float, X: np.ndarray, sigma_BN: np.ndarray, final: bool) -> None:
         """Truth of every craft (X (1 + N, 6), sigma_BN (1 + N, 3)) and the exostate at t, and
@@ -225,7 +197,7 @@ class EnvironmentService:
         for i, sc in enumerate(self.names):
             body = {"sc": sc, "r_N": X[i, :3], "v_N": X[i, 3:], "sigma_BN": sigma_BN[i]}
             bus.publish(truth_topic(sc), "truth", body, t)
-        v, phase = exostate(self.dep, t)
+        v, phase = self.model.exostate(t)
         bus.publish(EXOSTATE, "exo", {"v": v, "phase": phase}, t)
         fsw_step = on_grid(t, self.fsw)
         # lock-step services step on flight-software boundaries: a clock between them would
@@ -244,7 +216,7 @@ class EnvironmentService:
         }
         self.ctx.bus.publish(CLOCK, "clock", body, t)
 
-    # -- panel faults ------------------------------------------------------------------------
+    # -- panel faults from the ground ---------------------------------------------------------
 
     def on_fault(self, msg: Message) -> None:
         """``fault/panel`` from the ground: checked now, as a [[fault]] of the deployment
@@ -259,25 +231,7 @@ class EnvironmentService:
             self.ctx.log("warning", f"fault panel {sc}: refused ({exc}; got {msg.body})", msg.t)
             return
         factor, angle = (None if a is None else float(a) for a in (factor, angle))
-        self.panel_faults.from_ground((sc, factor, angle), msg.src)
-
-    def apply_panel_faults(self, t_k: float) -> None:
-        """Set the panels of the faults due at t_k, in time order (the ground's first)."""
-        for fault in sorted(self.panel_faults.pop_due(t_k), key=lambda f: f.t):
-            sc, factor, angle = fault.value
-            try:
-                self.truth.set_panel(self.deputies.index(sc), factor, angle)
-            except (ValueError, RuntimeError) as exc:
-                self.counters["bad_faults"] += 1
-                self.ctx.log("warning", f"fault panel {sc}: refused ({exc})", t_k)
-                continue
-            self.counters["panel_faults"] += 1
-            self.ctx.log(
-                "warning",
-                f"fault panel {sc}: {describe_panel(factor, angle)} "
-                f"from t = {t_k:.0f} s ({fault.origin})",
-                t_k,
-            )
+        self.model.panel_from_ground((sc, factor, angle), msg.src)
 
 
 if __name__ == "__main__":

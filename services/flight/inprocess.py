@@ -1,100 +1,247 @@
-"""The mission stepped in one process with no bus: the same truth, navigation and controller
-code as the services, called directly.  It is the baseline the distributed run is measured
-against (benchmarks) and a quick way to study the learner on truth data."""
+"""The one-process executor: the mission stepped synchronously in one process, with no bus,
+over the components the services run (``EnvironmentModel``, ``RelativeNavigation``,
+``ControlLoop``), each message between them passed through the link its subscriber's bus would
+give it (``services.bus.links.LinkModel``, seeded as the bus seeds it: ``link_seed``).  It
+flies what ``ddvi run`` flies in lock-step, the scheduled faults (panel, bias, outage) and the
+deployment's [[link]]s included, so a sweep or a campaign in process measures the same system;
+it is also the baseline the distributed run's cost is measured against (benchmarks).
+
+Order of one flight-software step at t_k, as lock-step orders the services: each controller
+takes what its links deliver by t_k and flies its steps up to t_k; the environment takes the
+commands its links deliver by t_k and propagates to t_k + fsw; each sample on the way goes to
+navigation, and navigation's and the exostate's messages into the controllers' links.  Not
+modelled: what only a wall clock decides (real-time mode, a service that dies or goes away, a
+flood past the rate budget) and the ground's run-time faults.  A link with jitter or reordering
+delivers a message at a time that, in the services, depends on which process runs first: there
+the two executors agree statistically, not sample for sample.
+"""
 
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
+from services.bus.links import LinkModel, link_seed
 from services.config import Deployment
 from services.flight.control import Controller
-from services.flight.relative_navigation import RelativeNavigation
-from services.model import (
-    IN_PLANE,
-    duration,
-    exostate,
-    on_grid,
-    open_truth,
-    panel_schedule,
+from services.flight.control_loop import (
+    ControlLoop,
+    Said,
+    Step,
+    input_delay,
+    newest_sample_time,
 )
+from services.flight.environment_model import EnvironmentModel
+from services.flight.relative_navigation import RelativeNavigation
+from services.interface import EXOSTATE, command_topic, nav_state_topic
+from services.interface.links import select_rule
+from services.model import IN_PLANE, duration, on_grid, open_truth
+
+
+class Link:
+    """What one subscription of ``subscriber`` (its topic pattern ``subscription``) receives
+    from ``publisher`` on ``topic``: the deployment's first matching [[link]] rule applied by
+    the model the subscriber's bus would make for it, or a perfect link."""
+
+    def __init__(
+        self, dep: Deployment, subscriber: str, subscription: str, publisher: str, topic: str
+    ) -> None:
+        rules = dep.links_for(subscriber)
+        i = select_rule(rules, publisher, topic)
+        self.model = (
+            None
+            if i is None
+            else LinkModel(
+                rules[i].spec, link_seed(dep.run.seed, subscriber, subscription, i, publisher)
+            )
+        )
+        self.out: list[Any] = []  # delivered, not yet taken
+        self.sent = 0  # identifies a message: a duplicate is taken once, as the bus's window does
+        self.taken: set[int] = set()
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """What the link did: dropped, duplicated, reordered, delayed (``LinkModel``)."""
+        if self.model is None:
+            return {"dropped": 0, "duplicated": 0, "reordered": 0, "delayed": 0}
+        return self.model.counters
+
+    def send(self, item: Any, t: float) -> None:
+        """``item`` published at simulation time t."""
+        self.sent += 1
+        if self.model is None:
+            self.out.append((self.sent, item))
+        else:
+            self.out += self.model.offer((self.sent, item), t, sent=t)
+
+    def receive(self, now: float) -> list[Any]:
+        """What the link has delivered by ``now``, each message once, in delivery order."""
+        if self.model is not None:
+            self.out += self.model.release(now)
+        out, self.out = self.out, []
+        fresh = []
+        for n, item in out:
+            if n not in self.taken:
+                self.taken.add(n)
+                fresh.append(item)
+        return fresh
+
+
+class DeputyFlight:
+    """One deputy's navigation and controller, and the links between them and the
+    environment, as its services and their buses would have them."""
+
+    def __init__(self, dep: Deployment, name: str) -> None:
+        sc, ctrl_name = name, f"ctrl-{name}"
+        self.name = sc
+        self.navigation = RelativeNavigation(dep, dep.deputy_named(sc))
+        self.controller = Controller(dep, sc)
+        self.loop = ControlLoop(self.controller, dep.run, input_delay(dep, sc))
+        nav_topic = nav_state_topic(sc)
+        self.nav_link = Link(dep, ctrl_name, nav_topic, f"nav-{sc}", nav_topic)
+        self.exo_link = Link(dep, ctrl_name, EXOSTATE, "environment", EXOSTATE)
+        self.cmd_link = Link(dep, "environment", command_topic("*"), ctrl_name, command_topic(sc))
+        self.cmd_delay = dep.link_latency(ctrl_name, "environment", command_topic(sc))
+        series = ("t", "x", "z", "estimate", "cov", "valid", "step_t", "sigma", "safe")
+        self.rec: dict[str, Any] = {k: [] for k in series} | {"log": [], "said": []}
+
+    def fly(self, t_k: float, final_t: float | None) -> None:
+        """Take what the links delivered by t_k and fly the steps up to t_k."""
+        for t, x, altitude, z, valid in self.nav_link.receive(t_k):
+            self.loop.nav(t, x, altitude, z, valid)
+        for t, v in self.exo_link.receive(t_k):
+            self.loop.exo(t, v)
+        for item in self.loop.advance(lambda T: t_k + 1e-6 >= T, final_t):
+            if isinstance(item, Said):
+                self.rec["said"].append(item.text)
+            else:
+                self.command(item, final_t)
+
+    def command(self, step: Step, final_t: float | None) -> None:
+        """A step's command, recorded and sent to the environment; not the final step's,
+        which comes after the environment's last step: nothing takes it."""
+        if step.learn_log is not None:
+            self.rec["log"].append(step.learn_log)
+        self.rec["step_t"].append(step.T)
+        self.rec["sigma"].append(step.sigma)
+        self.rec["safe"].append(step.safe)
+        if final_t is None or final_t - 1e-6 > step.T:
+            self.cmd_link.send((step.T, step.sigma), step.T)
+
+    def measure(self, t: float, chief: np.ndarray, deputy: np.ndarray, v: np.ndarray) -> None:
+        """The sample at t: the exostate to the controller, and on navigation's grid its
+        measurement."""
+        self.exo_link.send((t, v), t)
+        if not on_grid(t, self.navigation.period):
+            return
+        nav = self.navigation.measure(t, chief, deputy)
+        plane = list(IN_PLANE)  # the controller's state: x, y and their rates
+        self.nav_link.send((t, nav.x[plane], nav.altitude, nav.z[plane], nav.valid), t)
+        rec = self.rec
+        for key, value in (
+            ("t", t),
+            ("x", nav.truth),
+            ("z", nav.z),
+            ("estimate", nav.x),
+            ("cov", nav.cov),
+            ("valid", nav.valid),
+        ):
+            rec[key].append(value)
+
+    def record(self) -> dict[str, Any]:
+        """The deputy's record (see ``run_in_process``)."""
+        rec = {k: np.array(v) for k, v in self.rec.items() if k not in ("log", "said")}
+        rec["log"], rec["said"] = self.rec["log"], self.rec["said"]
+        # the command issued for the newest step at or before each sample (0 before any)
+        k = np.searchsorted(rec["step_t"], rec["t"] + 1e-6, side="right") - 1
+        rec["u"] = np.zeros(len(rec["t"]))
+        if len(rec["sigma"]):
+            rec["u"][k >= 0] = rec["sigma"][k[k >= 0], 2]
+        rec["controller"] = self.controller
+        rec["counters"] = dict(self.loop.counters)
+        return rec
 
 
 def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> dict[str, dict]:
-    """Run ``dep`` to the end; per deputy, at its navigation samples: times ``t`` (K,), the
+    """Run ``dep`` to the end; per deputy: at its navigation samples, times ``t`` (K,), the
     truth ``x`` (K, 6) in navigation's frame, the measurement ``z`` (K, 6), the estimate
-    ``estimate`` (K, 6) and its covariance ``cov`` (K, 6, 6), the command in force ``u``
-    (K,); the ``controller`` object (final gains, phase) and its learning ``log`` lines.
-    Each deputy's navigation is its navigation service's (``RelativeNavigation``: the same
-    noise draws, bias faults and filter).
+    ``estimate`` (K, 6) and its covariance ``cov`` (K, 6, 6), ``valid`` (K,) (False in an
+    outage) and ``u`` (K,), the sigma3 of the newest command issued by then; every step's
+    time ``step_t`` (S,), command ``sigma`` (S, 3) and whether it flew ``safe`` (S,); at
+    every truth sample, ``truth_t`` (M,) and the chief's and the deputy's inertial states
+    ``chief_rv`` and ``rv`` (M, 6); the ``controller`` object (final gains, phase), its
+    learning ``log`` lines, what its loop ``said`` and its ``counters``; what its input
+    ``links`` dropped and delayed; the ``environment``'s counters (with what its command
+    links dropped and delayed).
 
     ``timing``, if given, gets the wall seconds of each service's share: ``environment``
     (truth, exostate), ``nav-<deputy>`` (states, bias, noise, filter), ``ctrl-<deputy>``
-    (controller and learning), and ``steps``, the flight-software steps."""
+    (controller and learning), and ``steps``, the flight-software steps.  Raises
+    ``services.model.ReentryError`` if a craft re-enters."""
     clock = time.perf_counter
-    spent = dict.fromkeys(
-        ["environment", *(f"{p}-{d.name}" for d in dep.deputy for p in ("nav", "ctrl"))], 0.0
-    )
-    run = dep.run
-    fsw, t_end = run.fsw_period, duration(dep)
-    truth = open_truth(dep)
-    ctrls = [Controller(dep, d.name) for d in dep.deputy]
-    navigations = [RelativeNavigation(dep, d) for d in dep.deputy]
-    series = ("t", "x", "z", "estimate", "cov", "u")
-    out = {d.name: {**{k: [] for k in series}, "log": []} for d in dep.deputy}
-    sigma = np.zeros((len(ctrls), 3))
-
-    def sample(t: float, X: np.ndarray) -> None:
-        t0 = clock()
-        v, _ = exostate(dep, t)
-        spent["environment"] += clock() - t0
-        for i, (d, c) in enumerate(zip(dep.deputy, ctrls, strict=True)):
-            if not on_grid(t, navigations[i].period):
-                continue
-            t0 = clock()
-            nav = navigations[i].measure(t, X[0], X[i + 1])
-            t1 = clock()
-            plane = list(IN_PLANE)  # the controller's state: x, y and their rates
-            outcome = c.on_sample(t, nav.x[plane], v, nav.altitude, nav.z[plane])
-            spent[f"nav-{d.name}"] += t1 - t0
-            spent[f"ctrl-{d.name}"] += clock() - t1
-            if outcome.learn_log is not None:
-                out[d.name]["log"].append(outcome.learn_log)
-            if outcome.fsw:
-                sigma[i] = [0.0, 0.0, c.u]
-            rec = out[d.name]
-            rec["t"].append(t)
-            rec["x"].append(nav.truth)
-            rec["z"].append(nav.z)
-            rec["estimate"].append(nav.x)
-            rec["cov"].append(nav.cov)
-            rec["u"].append(c.u)
-
-    sample(0.0, truth.state)
-    t_k = 0.0
     names = [d.name for d in dep.deputy]
-    # panel faults as the environment applies them
-    panels = panel_schedule(dep)
-    steps = 0
-    try:
-        while t_k < t_end - 1e-6:
-            while panels and panels[0][0] <= t_k + 1e-6:
-                _, sc, factor, angle = panels.pop(0)
-                truth.set_panel(names.index(sc), factor, angle)
+    spent = dict.fromkeys(
+        ["environment", *(f"{p}-{n}" for n in names for p in ("nav", "ctrl"))], 0.0
+    )
+    fsw, t_end = dep.run.fsw_period, duration(dep)
+    flights = [DeputyFlight(dep, n) for n in names]
+    truth_t: list[float] = []
+    states: list[np.ndarray] = []
+
+    def publish(t: float, X: np.ndarray) -> None:
+        t0 = clock()
+        v, _ = env.exostate(t)
+        spent["environment"] += clock() - t0
+        truth_t.append(t)
+        states.append(X)
+        for i, flight in enumerate(flights):
             t0 = clock()
-            samples, traj = truth.step(t_k, sigma)
+            flight.measure(t, X[0], X[i + 1], v)
+            spent[f"nav-{flight.name}"] += clock() - t0
+
+    def fly_controllers(t_k: float, final_t: float | None) -> None:
+        for flight in flights:
+            t0 = clock()
+            flight.fly(t_k, final_t)
+            spent[f"ctrl-{flight.name}"] += clock() - t0
+
+    truth = open_truth(dep)
+    try:
+        env = EnvironmentModel(dep, truth)
+        publish(0.0, truth.state)
+        t_k = 0.0
+        while t_k < t_end - 1e-6:
+            fly_controllers(t_k, None)
+            t0 = clock()
+            expected = {f.name: newest_sample_time(t_k, f.cmd_delay, fsw) for f in flights}
+            for flight in flights:
+                for for_t, sigma in flight.cmd_link.receive(t_k):
+                    env.commands.deliver(flight.name, for_t, sigma, t_k, expected[flight.name])
+            env.commands.count_missing(expected)
+            samples, traj, _ = env.step(t_k)
             spent["environment"] += clock() - t0
             for k, t in enumerate(samples):
-                sample(float(t), traj[k])
+                publish(float(t), traj[k])
             t_k += fsw
-            steps += 1
+        fly_controllers(t_k, t_k)  # the final clock: the last steps, on what came by then
     finally:
         truth.close()
     if timing is not None:
-        timing.update(spent, steps=steps)
-    for d, c in zip(dep.deputy, ctrls, strict=True):
-        rec = out[d.name]
-        rec.update({k: np.array(rec[k]) for k in series})
-        rec["controller"] = c
+        timing.update(spent, steps=env.counters["steps"])
+    X = np.array(states)
+    environment = dict(env.counters)
+    for key in ("dropped", "delayed"):  # its links' from every controller, as its bus counts
+        environment[key] = sum(f.cmd_link.counters[key] for f in flights)
+    out: dict[str, dict] = {}
+    for i, flight in enumerate(flights):
+        rec = flight.record()
+        rec.update(truth_t=np.array(truth_t), chief_rv=X[:, 0], rv=X[:, i + 1])
+        rec["links"] = {
+            key: flight.nav_link.counters[key] + flight.exo_link.counters[key]
+            for key in ("dropped", "delayed")
+        }
+        rec["environment"] = environment
+        out[flight.name] = rec
     return out

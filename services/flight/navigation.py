@@ -1,8 +1,8 @@
 """Navigation service, one per deputy: what an on-board relative navigation filter publishes.
 
 Inputs:  truth/chief, truth/<deputy> (truth); clock; fault/bias (fault: target = deputy,
-         params px py pz (m) vx vy vz (m/s), the new bias) and the deployment's scheduled
-         [[fault]] biases.
+         params px py pz (m) vx vy vz (m/s), the new bias), fault/outage (params
+         duration_orbits) and the deployment's scheduled [[fault]] biases and outages.
 Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
          [x, y, z, xdot, ydot, zdot], in the frame navigation.frame names (ddvi_core.relnav:
          against the chief's path by default, or curvilinear Hill), at the configured rate:
@@ -25,7 +25,7 @@ from services.flight.relative_navigation import RelativeNavigation
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FinalClock, SamplePairs
 from services.interface import CLOCK, Message, fault_topic, nav_state_topic, truth_topic
-from services.model import on_grid
+from services.model import on_grid, orbit_period
 
 BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
 """The params of a bias fault: position (m) and velocity (m/s) bias, in navigation's frame."""
@@ -59,13 +59,21 @@ class NavigationService:
                 truth_topic(craft), queue_handler(self.inbox), expected_schema="truth"
             )
         ctx.bus.subscribe(CLOCK, queue_handler(self.inbox), expected_schema="clock")
-        ctx.bus.subscribe(fault_topic("bias"), queue_handler(self.inbox), expected_schema="fault")
+        for kind in ("bias", "outage"):
+            ctx.bus.subscribe(fault_topic(kind), queue_handler(self.inbox), expected_schema="fault")
         if ctx.joining:
             ctx.log("warning", "restarted into the running mission: publishing from the next truth")
         else:
             ctx.ready()
         self.pairs = SamplePairs(("chief", sc))
-        self.counters = {"published": 0, "unmatched": 0, "bias_faults": 0, "bad_faults": 0}
+        self.counters = {
+            "published": 0,
+            "unmatched": 0,
+            "bias_faults": 0,
+            "bad_faults": 0,
+            "outages": 0,
+            "outage_samples": 0,
+        }
         self.final = FinalClock()
         self.last_t = -1.0  # last published sample
         self.last_pair = -1.0  # last sample for which both truths arrived
@@ -74,7 +82,7 @@ class NavigationService:
         """Take messages until the final sample is paired or a stop is requested; returns 0."""
         while not self.ctx.stop.is_set():
             try:
-                _, msg = self.inbox.get(timeout=0.5)
+                topic, msg = self.inbox.get(timeout=0.5)
             except queue.Empty:
                 if self.final.grace_over():
                     break  # the last truth never came (a lost message): nothing more will
@@ -83,9 +91,9 @@ class NavigationService:
             # the environment's step arrives at once, so a step's samples leave together
             with self.ctx.bus.batch():
                 while True:
-                    self.handle(msg)
+                    self.handle(topic, msg)
                     try:
-                        _, msg = self.inbox.get_nowait()
+                        topic, msg = self.inbox.get_nowait()
                     except queue.Empty:
                         break
             if self.final.t is not None and self.last_pair >= self.final.t - 1e-6:
@@ -93,30 +101,42 @@ class NavigationService:
         self.ctx.publish_stats(self.last_t, self.counters)
         return 0
 
-    def handle(self, msg: Message) -> None:
+    def handle(self, topic: str, msg: Message) -> None:
         if msg.schema == "clock":
             self.final.on_clock(msg)
         elif msg.schema == "fault":
-            self.on_fault(msg)
+            self.on_fault(topic.removeprefix("fault/"), msg)
         elif msg.body["sc"] in ("chief", self.sc):
             self.on_truth(msg)
 
-    def on_fault(self, msg: Message) -> None:
-        """``fault/bias`` from the ground: queue the new bias if it is this deputy's."""
+    def on_fault(self, kind: str, msg: Message) -> None:
+        """``fault/bias`` or ``fault/outage`` (``kind``: its topic's, not its body's word) from
+        the ground: checked as a [[fault]] of the deployment would be, and queued if it is
+        this deputy's."""
         if msg.body["target"] != self.sc:
             return  # another deputy's navigation
         p = msg.body["params"]
-        values = [p.get(k, 0.0) for k in BIAS_KEYS]
-        position, velocity = values[:3], values[3:]
-        fault = Fault(kind="bias", deputy=self.sc, position_bias=position, velocity_bias=velocity)
-        try:  # as a [[fault]] of the deployment: numbers in a navigation bias's range
-            check_fault(self.ctx.deployment, "bias", fault)
-        except DeploymentError as exc:
+        try:
+            if kind == "outage":
+                fault = Fault(kind="outage", deputy=self.sc, duration_orbits=p["duration_orbits"])
+            else:
+                values = [p.get(k, 0.0) for k in BIAS_KEYS]
+                fault = Fault(
+                    kind="bias", deputy=self.sc, position_bias=values[:3], velocity_bias=values[3:]
+                )
+            check_fault(self.ctx.deployment, kind, fault)
+        except (DeploymentError, KeyError, TypeError) as exc:
             self.counters["bad_faults"] += 1
-            said = f"fault bias {self.sc}: refused ({exc}; params {BIAS_KEYS}, got {p})"
+            expected = "params.duration_orbits" if kind == "outage" else f"params {BIAS_KEYS}"
+            said = f"fault {kind} {self.sc}: refused ({exc}; {expected}, got {p})"
             self.ctx.log("warning", said, msg.t)
             return
-        self.navigation.bias_from_ground(np.array(values, dtype=float), msg.src)
+        if kind == "outage":
+            orbits = float(fault.duration_orbits)
+            self.navigation.outage_from_ground(orbits * orbit_period(self.ctx.deployment), msg.src)
+        else:
+            bias = np.array(fault.position_bias + fault.velocity_bias, dtype=float)
+            self.navigation.bias_from_ground(bias, msg.src)
 
     def on_truth(self, msg: Message) -> None:
         """One craft's truth: once both craft of its time are in, publish the sample if it is
@@ -141,13 +161,19 @@ class NavigationService:
             self.counters["bias_faults"] += 1
             said = f"fault bias {sc}: navigation bias now {fault.value.tolist()} from t = {t:.0f} s"
             self.ctx.log("warning", f"{said} ({fault.origin})", t)
+        if sample.outage is not None:
+            self.counters["outages"] += 1
+            until = sample.outage.value
+            said = f"fault outage {sc}: no measurement from t = {t:.0f} s to {until:.0f} s"
+            self.ctx.log("warning", f"{said}, the filter propagates ({sample.outage.origin})", t)
+        self.counters["outage_samples"] += not sample.valid
         body = {
             "sc": sc,
             "x_hill": sample.x,
             "z_hill": sample.z,
             "cov": sample.cov,
             "altitude": sample.altitude,
-            "valid": True,
+            "valid": sample.valid,
         }
         self.ctx.bus.publish(nav_state_topic(sc), "nav", body, t)
         self.counters["published"] += 1

@@ -3,13 +3,16 @@ with no bus, no wall clock and no I/O, so that the service and the one-process r
 same code.
 
 Inputs:  ``measure(t, chief, deputy)``: the chief's and the deputy's inertial truth (6,) at a
-         sample time on the navigation grid; ``bias_from_ground(bias, src)``: a bias fault the
-         ground sent, applied from the next sample; the deployment's scheduled [[fault]]
-         biases, at their times.
+         sample time on the navigation grid; ``bias_from_ground(bias, src)`` and
+         ``outage_from_ground(duration, src)``: a bias or outage fault the ground sent, in
+         force from the next sample; the deployment's scheduled [[fault]]
+         biases and outages, at their times.
 Outputs: ``NavSample``: the estimate (the filter's, ``ddvi_core.navfilter``, or the
          measurement itself with ``navigation.filter = "none"``), the measurement (truth in
-         navigation's frame, the bias in force, white noise) and the covariance; with the bias
-         faults that came into force at that sample, for the host to say.
+         navigation's frame, the bias in force, white noise) and the covariance; with the
+         faults that came into force at that sample, for the host to say.  During an outage
+         nothing is measured: no noise is drawn, the filter propagates (its covariance grows)
+         and the sample is not valid; without a filter the last estimate is held.
 """
 
 from __future__ import annotations
@@ -49,14 +52,18 @@ def navigation_filter(dep: Deployment, deputy: Deputy) -> RelativeNavFilter | No
 class NavSample:
     """One navigation sample: the estimate x (6,) and its covariance (6, 6), the measurement
     z (6,) and the truth it measured (6,), all in navigation's frame (m, m/s), and the
-    deputy's altitude (m); ``biased``: the bias faults that came into force at it."""
+    deputy's altitude (m); ``valid``: measured (not in an outage, where z is the estimate);
+    ``biased``: the bias faults that came into force at it; ``outage``: the outage that began
+    at it (its end, s), if one did."""
 
     truth: np.ndarray
     x: np.ndarray
     z: np.ndarray
     cov: np.ndarray
     altitude: float
+    valid: bool = True
     biased: tuple[Fault[np.ndarray], ...] = ()
+    outage: Fault[float] | None = None
 
 
 class RelativeNavigation:
@@ -85,22 +92,46 @@ class RelativeNavigation:
                 if f.kind == "bias" and f.deputy == deputy.name
             ]
         )
+        # outages: (start, duration) s, the deployment's
+        self.outages: FaultQueue[float] = FaultQueue(
+            [
+                (f.at_orbits * orbit, f.duration_orbits * orbit)
+                for f in dep.fault
+                if f.kind == "outage" and f.deputy == deputy.name
+            ]
+        )
+        self.outage_until = -np.inf  # the end of the outage in force (s)
+        self.last: tuple[np.ndarray, np.ndarray] | None = None  # the last estimate, covariance
 
     def bias_from_ground(self, bias: np.ndarray, src: str) -> None:
         """A bias fault (6,) from the ground's service ``src``: in force from the next sample."""
         self.bias_faults.from_ground(np.asarray(bias, dtype=float), src)
 
+    def outage_from_ground(self, duration: float, src: str) -> None:
+        """An outage of ``duration`` s from the ground's service ``src``: from the next sample."""
+        self.outages.from_ground(float(duration), src)
+
     def measure(self, t: float, chief: np.ndarray, deputy: np.ndarray) -> NavSample:
         """The sample at ``t`` from the chief's and the deputy's inertial states (6,): the
         measurement (the bias in force from ``t`` on; a draw of white noise unless the
-        deployment sets none) through the filter."""
+        deployment sets none) through the filter; in an outage, the filter's prediction."""
         due = tuple(self.bias_faults.pop_due(t))
         for fault in due:
             self.bias = fault.value
+        began = None
+        for outage in self.outages.pop_due(t):
+            start = outage.t if np.isfinite(outage.t) else t  # scheduled, or the ground's: now
+            self.outage_until = max(self.outage_until, start + outage.value)
+            began = outage._replace(value=self.outage_until)
         truth = navigation_state(self.dep, self.deputy, chief, deputy)
+        altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
+        if t < self.outage_until - 1e-6 and self.last is not None:
+            x, cov = self.last if self.filter is None else self.filter.predict(t)
+            self.last = (x, cov)
+            return NavSample(truth, x, x, cov, altitude, False, due, began)
         z = truth + self.bias
         if self.sigma.any():  # no draw without noise: the generator's stream stays the same
             z = z + self.rng.normal(0.0, 1.0, 6) * self.sigma
         x, cov = (z, self.R) if self.filter is None else self.filter.update(t, z)
-        altitude = float(np.linalg.norm(deputy[:3])) - R_EARTH
-        return NavSample(truth, x, z, cov, altitude, due)
+        self.last = (x, cov)
+        return NavSample(truth, x, z, cov, altitude, True, due, began)

@@ -33,12 +33,12 @@ class StepGate:
     run : the deployment's ``[run]`` (mode, fsw_period, command_deadline, hang_timeout,
         nav_stale_limit).
     sc : the deputy's name (its navigation service is ``nav-<sc>``).
-    nav_period : the navigation sample interval, s.
-    delay : the nominal delay of the controller's input links, s.
+    expected_sample : the measurement time of the newest sample a step at T can have
+        (``ControlLoop.expected_sample``: its inputs' delay behind it).
     """
 
-    def __init__(self, run: Any, sc: str, nav_period: float, delay: float) -> None:
-        self.sc, self.nav_period, self.delay = sc, nav_period, delay
+    def __init__(self, run: Any, sc: str, expected_sample: Callable[[float], float]) -> None:
+        self.sc, self.expected_sample = sc, expected_sample
         # the clock's time reached, and the nav and exo samples accounted for up to
         self.reached = {"now": -math.inf, "nav": -math.inf, "exo": -math.inf}
         # while navigation is away (its token gone NAV_AWAY_GRACE ago, until the token is
@@ -50,7 +50,6 @@ class StepGate:
         self.patience = (run.command_deadline, run.hang_timeout)
         self.waiting: tuple[float, Waiting] | None = None  # the step waited for, and how long
         self.stale_limit = run.nav_stale_limit or 2.0 * run.fsw_period
-        self.safe = False  # flying the safe attitude
 
     # -- what has been accounted for ----------------------------------------------------------
 
@@ -75,10 +74,6 @@ class StepGate:
             self.nav_gone = time.monotonic()
 
     # -- the steps ----------------------------------------------------------------------------
-
-    def expected_sample(self, T: float) -> float:
-        """The newest sample the step at T can have (negative: none yet)."""
-        return math.floor((T - self.delay) / self.nav_period + 1e-9) * self.nav_period
 
     def nav_away(self) -> bool:
         return self.nav_gone is not None and time.monotonic() - self.nav_gone >= NAV_AWAY_GRACE
@@ -118,24 +113,3 @@ class StepGate:
             )
         if waiting.over(now):
             raise HangError(who, f"sample for t = {want:.0f} s", T, waiting.hang)
-
-    def stale(self, T: float, newest_t: float | None, first: bool) -> tuple[bool, str | None]:
-        """Whether the step at T flies the safe attitude, its newest sample (measured at
-        ``newest_t``, None: none) older than the limit (run.nav_stale_limit) past the one it
-        should have; and what to say on the way in or out.  In real time that sample did not
-        come in time; in lock-step, where the step waits until it is accounted for, it is held
-        or lost on its link (a run-time link fault, whose delay the wait does not know) or
-        navigation is away.  ``first``: no step has flown yet; a step before any sample is
-        due, or before any came at the start, holds zero, not the safe attitude."""
-        want = self.expected_sample(T)
-        if want < -1e-6 or (first and newest_t is None):
-            return False, None
-        age = want - (newest_t if newest_t is not None else -math.inf)
-        safe = age > self.stale_limit + 1e-6
-        if safe == self.safe:
-            return safe, None
-        self.safe = safe
-        if safe:
-            what = "no navigation yet" if newest_t is None else f"navigation {age:.0f} s old"
-            return True, f"{what} (limit {self.stale_limit:g} s): flying the safe attitude"
-        return False, "navigation is back: flying the control law"

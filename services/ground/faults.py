@@ -13,6 +13,8 @@ clock, which also proves the run is there).  The kinds:
                                     controllers are not told)
     bias DEPUTY --position X Y Z [--velocity X Y Z]
                                     the deputy's navigation bias becomes this (m, m/s)
+    outage DEPUTY --orbits N        the deputy's navigation measures nothing for N chief
+                                    orbits: its filter propagates, its samples are not valid
     link --from PUB --to SUB [--topic T] [--delay S] [--jitter S] [--loss P] [--duplicate P]
          [--reorder P]              every service matching SUB impairs what it receives from
                                     PUB (service-name globs; nav/deputy1 means nav-deputy1)
@@ -78,7 +80,7 @@ if TYPE_CHECKING:
     from services.config.deployment import Link
     from services.ground.credentials import RunBus
 
-KINDS = ("kill", "panel", "bias", "link")
+KINDS = ("kill", "panel", "bias", "outage", "link")
 
 
 def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -88,7 +90,8 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument(
         "target",
         nargs="?",
-        help="kill: a service (ctrl-<deputy>, nav-<deputy>); panel, bias: a deputy; link: see --to",
+        help="kill: a service (ctrl-<deputy>, nav-<deputy>); panel, bias, outage: a deputy; "
+        "link: see --to",
     )
     p.add_argument("--from", dest="publisher", help="link: publishing service(s), a glob")
     p.add_argument("--to", dest="subscriber", help="link: subscribing service(s), a glob")
@@ -117,6 +120,12 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         metavar=("X", "Y", "Z"),
         default=[0.0, 0.0, 0.0],
         help="bias: Hill velocity bias, m/s",
+    )
+    p.add_argument(
+        "--orbits",
+        type=float,
+        metavar="N",
+        help="outage: how long navigation measures nothing, chief orbits (> 0)",
     )
     p.add_argument("--output", default="runs", help="where run folders are (default: runs)")
     p.add_argument("--hub", help="an insecure run's hub, when its run folder is not here")
@@ -224,6 +233,10 @@ def _params(args: argparse.Namespace, target: str) -> tuple[dict[str, Any], str 
             raise UsageError(f"ddvi fault: {exc}") from None
         values = [*args.position, *args.velocity]
         return dict(zip(("px", "py", "pz", "vx", "vy", "vz"), values, strict=True)), f"nav-{target}"
+    if args.kind == "outage":
+        if args.orbits is None or not args.orbits > 0:
+            raise UsageError("ddvi fault outage: give --orbits N (> 0), how long it lasts")
+        return {"duration_orbits": args.orbits}, f"nav-{target}"
     if args.kind == "link":
         link = _link(args)
         params = {"from": link.publisher, "topic": link.topic}
@@ -265,6 +278,7 @@ def check_against(dep: Deployment, args: argparse.Namespace, target: str) -> Non
                 normal_angle=args.stuck_angle,
                 position_bias=list(args.position or [0.0, 0.0, 0.0]),
                 velocity_bias=list(args.velocity),
+                duration_orbits=args.orbits if args.kind == "outage" else 0.0,
             )
             check_fault(dep, args.kind, fault)
     except DeploymentError as exc:

@@ -215,9 +215,7 @@ class RunData:
         common, ic, id_ = np.intersect1d(tc, td, assume_unique=False, return_indices=True)
         if not len(common):
             return np.empty(0), np.empty((0, 6))
-        c, d = c[ic], d[id_]
-        a_c = chief_acceleration(c[:, :3], c[:, 3:], self.dep.environment.j2)
-        return common, hill_states(c[:, :3], c[:, 3:], a_c, d[:, :3], d[:, 3:])
+        return common, truth_hill(self.dep, c[ic], d[id_])
 
     def live(self, deputy: Deputy) -> dict[str, Any]:
         """Latest values for the status line of one deputy (no J2 frame-rate term)."""
@@ -240,6 +238,13 @@ class RunData:
         if craft.status:
             out.update(craft.status[-1].body)
         return out
+
+
+def truth_hill(dep: Deployment, chief: FloatArray, deputy: FloatArray) -> FloatArray:
+    """The deputy's truth Hill state (N, 6) vs the chief's, from their inertial states (N, 6)
+    at the same times: the frame every report scores in."""
+    a_c = chief_acceleration(chief[:, :3], chief[:, 3:], dep.environment.j2)
+    return hill_states(chief[:, :3], chief[:, 3:], a_c, deputy[:, :3], deputy[:, 3:])
 
 
 def chief_acceleration(r: FloatArray, v: FloatArray, j2: bool) -> FloatArray:

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.config import Deployment, Deputy
+from services.ground.rundata import truth_hill
 from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
 
 log = logging.getLogger("ddvi.scoring")
@@ -227,14 +228,14 @@ def deputy_metrics(
     }
 
 
-def inprocess_outcome(deputy: Deputy, rec: dict[str, Any]) -> DeputyOutcome:
-    """One deputy's outcome from ``services.flight.inprocess.run_in_process``'s record of it
-    (along-track error of the true state in the navigation frame)."""
+def inprocess_outcome(dep: Deployment, deputy: Deputy, rec: dict[str, Any]) -> DeputyOutcome:
+    """One deputy's outcome from ``services.flight.inprocess.run_in_process``'s record of it:
+    the along-track error of its truth Hill state at every truth sample, as a report has it."""
     c = rec["controller"]
-    x = np.asarray(rec["x"])
+    hill = truth_hill(dep, np.asarray(rec["chief_rv"]), np.asarray(rec["rv"]))
     return DeputyOutcome(
-        t=np.asarray(rec["t"]),
-        along_track_error=np.abs(x[:, 1] - deputy.y_ref),
+        t=np.asarray(rec["truth_t"]),
+        along_track_error=np.abs(hill[:, 1] - deputy.y_ref),
         K=np.asarray(c.K),
         source=c.source,
         learned_at=list(getattr(c, "learned_at", [])),

@@ -4,7 +4,8 @@ model mismatch, every deputy of the deployment side by side.
     ddvi sweep delay [DEPLOYMENT] --values 0 60 120 180 300
     ddvi sweep loss  [DEPLOYMENT] --values 0 0.1 0.2 0.3 0.5
     ddvi sweep noise [DEPLOYMENT] --values 0 0.1 1 10 [--mismatch 1 2] [--orbits 40 30]
-                     [--in-process] [--filter kalman]
+                     [--filter kalman]
+    ddvi sweep KIND ... --in-process
 
 delay, loss: two links impaired, ahead of the deployment's own [[link]] rules: navigation to
 controller (``nav-*`` to ``ctrl-*``) and controller to environment (``cmd/*/att``), each with
@@ -18,10 +19,9 @@ navigation.filter.  ``--orbits`` gives one mission length, or one per mismatch f
 denser atmosphere brings the chief down sooner).
 
 Each run goes through the launcher (every service its own process, as ``ddvi run``); with
-``--in-process`` (noise only: it has no links to impair) through
-``services.flight.inprocess.run_in_process`` instead, the same services' code in one process
-(a 40-orbit mission in seconds; along-track error then in the deputy's navigation frame, the
-report's in the Hill frame).
+``--in-process`` through ``services.flight.inprocess.run_in_process`` instead, the services'
+components in one process with their links emulated (a 40-orbit mission in seconds; the same
+commands and figures as the launcher's in lock-step, unless a link jitters or reorders).
 
 Writes ``<output>/sweep-<kind>-<name>-<stamp>/``: ``sweep.csv`` (one row per run and deputy),
 ``sweep.md`` (the same table), ``sweep.png`` (``services.ground.sweep_table``), the derived
@@ -146,13 +146,22 @@ def summary_rows(point: dict[str, Any], summary: dict[str, Any]) -> list[dict[st
                 gain_error_vs_lqr=d["gain_error_vs_lqr"],
                 can_hold=d["can_hold"],
                 note=d["note"],
-                dropped=ctrl.get("dropped", 0) + env.get("dropped", 0),
-                delayed=ctrl.get("delayed", 0) + env.get("delayed", 0),
-                late=env.get("late_commands", 0),
-                missing=env.get("missing_commands", 0),
+                **link_counters(ctrl, env),
             )
         )
     return rows
+
+
+def link_counters(ctrl: dict[str, Any], env: dict[str, Any]) -> dict[str, int]:
+    """A deputy's link columns from its controller's counters and the environment's:
+    dropped and delayed by its controller's input links and every command link, late and
+    missing commands (all deputies)."""
+    return {
+        "dropped": ctrl.get("dropped", 0) + env.get("dropped", 0),
+        "delayed": ctrl.get("delayed", 0) + env.get("delayed", 0),
+        "late": env.get("late_commands", 0),
+        "missing": env.get("missing_commands", 0),
+    }
 
 
 def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any]]:
@@ -178,9 +187,10 @@ def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any
             **deputy_metrics(
                 dep,
                 d,
-                inprocess_outcome(d, out[d.name]),
+                inprocess_outcome(dep, d, out[d.name]),
                 cannot_hold=cannot_hold.get(d.name, ""),
             ),
+            **link_counters(out[d.name]["links"], out[d.name]["environment"]),
         )
         for d in dep.deputy
     ]
@@ -305,8 +315,6 @@ def sweep(
 ) -> tuple[Path, list[dict[str, Any]]]:
     """Run the sweep; return its folder and rows.  Raises DeploymentError or ValueError on a
     bad deployment or value (before anything runs)."""
-    if in_process and kind != "noise":
-        raise ValueError("--in-process models no link impairments: sweep delay and loss without it")
     orbits = [orbits] if isinstance(orbits, int | float) else orbits
     runs = sweep_points(kind, read_table(deployment), values, mismatches, orbits, nav_filter)
     base = load_deployment(str(resolve(deployment)))
@@ -368,7 +376,8 @@ def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--in-process",
         action="store_true",
-        help="noise: run each mission in this process (the services' code, no bus)",
+        help="run each mission in this process (the services' components, their links "
+        "emulated as the buses would; lock-step only)",
     )
     p.add_argument(
         "--filter",

@@ -202,12 +202,15 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
         "fault",
         1,
         {
-            "kind": Str(doc="kill, panel, bias or link"),
-            "target": Str(doc="a service (kill), a deputy (panel, bias), a subscriber glob (link)"),
+            "kind": Str(doc="kill, panel, bias, outage or link (its topic's)"),
+            "target": Str(
+                doc="a service (kill), a deputy (panel, bias, outage), a subscriber glob (link)"
+            ),
             "params": ScalarMap(
                 unit="per key",
                 doc="panel: area_factor (1), normal_angle (deg); bias: px py pz (m), vx vy vz "
-                "(m/s); link: from, topic, delay and jitter (s), loss, duplicate, reorder (1)",
+                "(m/s); outage: duration_orbits (chief orbits); link: from, topic, delay and "
+                "jitter (s), loss, duplicate, reorder (1)",
             ),
         },
         "a fault the ground injects",

@@ -54,7 +54,7 @@ def status_topic(deputy: str) -> str:
 
 
 def fault_topic(kind: str) -> str:
-    """``fault/<kind>``: a fault the ground injects (kill, panel, bias, link)."""
+    """``fault/<kind>``: a fault the ground injects (kill, panel, bias, outage, link)."""
     return f"fault/{kind}"
 
 
@@ -252,6 +252,14 @@ TOPOLOGY: tuple[Route, ...] = (
         ("ground-<pid>",),
         ("nav-<sc>", "monitor"),
         "on an operator's command (ddvi fault RUN bias)",
+        budget="fsw",
+    ),
+    Route(
+        fault_topic("outage"),
+        "fault",
+        ("ground-<pid>",),
+        ("nav-<sc>", "monitor"),
+        "on an operator's command (ddvi fault RUN outage)",
         budget="fsw",
     ),
     Route(

@@ -117,3 +117,24 @@ def test_bad_parameters_are_refused(kwargs: dict, text: str) -> None:
 def test_the_deployment_default_is_the_filter_default() -> None:
     assert Deputy().navigation.acceleration_noise == DEFAULT_ACCELERATION_NOISE
     assert Deputy().navigation.filter == "kalman"
+
+
+def test_an_outage_propagates_the_estimate_and_grows_its_covariance() -> None:
+    """With no measurement the filter predicts: the estimate moves by the CW flow, the
+    covariance grows by the process noise, and the next measurement updates from there."""
+    f = RelativeNavFilter(N, SIGMA, 3e-5, DT)
+    with pytest.raises(ValueError, match="no measurement yet"):
+        f.predict(0.0)
+    track = _cw_track(40)
+    for k in range(20):
+        x, P = f.update(k * DT, track[k])
+    Phi = transition(N, DT)
+    previous = np.trace(P)
+    for k in range(20, 30):
+        expected = Phi @ x
+        x, P = f.predict(k * DT)
+        assert np.allclose(x, expected, rtol=0, atol=1e-12)
+        assert np.trace(P) > previous and np.allclose(P, P.T)
+        previous = np.trace(P)
+    x, P = f.update(30 * DT, track[30])  # measured again: the covariance falls back
+    assert np.trace(P) < previous

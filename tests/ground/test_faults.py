@@ -433,10 +433,10 @@ def _series(csv: Path, deputy: str) -> dict[str, np.ndarray]:
 def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     start_mission: Callable[[str], Mission],
 ) -> None:
-    """Scheduled [[fault]]s and `ddvi fault RUN panel|bias` change the truth's panel area and
-    a navigation bias at their times: the faulted deputy's truth leaves the unfaulted
-    reference from the fault on (not before), the navigation error jumps by the bias, and
-    summary.json counts every fault applied."""
+    """Scheduled [[fault]]s and `ddvi fault RUN panel|bias|outage` change the truth's panel
+    area, a navigation bias and whether navigation measures at their times: the faulted
+    deputy's truth leaves the unfaulted reference from the fault on (not before), the
+    navigation error jumps by the bias, and summary.json counts every fault applied."""
     mission = start_mission(FAULTED)
     orbit = 5431.0
     mission.wait_for(0.6 * orbit)
@@ -445,15 +445,23 @@ def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     assert "fault panel ddvi: panel area now 1.2 x nominal, normal stuck at 40 deg" in r.stdout
     r = mission.fault("bias", "lqr", "--position", "0", "0", "0")
     assert r.returncode == 0 and "fault bias lqr: navigation bias now" in r.stdout, r.stderr
+    r = mission.fault("outage", "ddvi", "--orbits", "0.05")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "fault outage ddvi: no measurement from t = " in r.stdout
     r = mission.fault("panel", "nobody", "--area-factor", "1.2")
     assert r.returncode == 1 and "fault panel nobody: refused" in r.stdout, r.stdout + r.stderr
     rc, out, err = mission.finish()
-    assert rc == 0, err[-3000:]
+    # 270 s without navigation, past the stale limit (120 s): the safe attitude, exit 3
+    assert rc == 3 and "safe attitude flown by ctrl-ddvi" in err, err[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     services = summary["messages"]["services"]
     assert services["environment"]["panel_faults"] == 2
     assert services["environment"]["bad_faults"] == 1
     assert services["nav-ddvi"]["bias_faults"] == 1 and services["nav-lqr"]["bias_faults"] == 1
+    # 0.05 orbits of samples every 10 s: 27 or 28 not measured
+    assert services["nav-ddvi"]["outages"] == 1
+    assert 26 <= services["nav-ddvi"]["outage_samples"] <= 28
+    assert services["nav-lqr"]["outages"] == 0
     # the same mission with no fault, in one process: the lqr deputy's truth is the same up
     # to its panel fault and departs from it after
     table = tomllib.loads(FAULTED.format(port=0))
@@ -640,6 +648,7 @@ REFUSED_FAULTS: list[tuple[list[str], str]] = [
         ["bias", "lqr", "--position", "0", "0", "0", "--area-factor", "2"],
         "bias: area_factor and normal_angle belong to panel faults, not 'bias'",
     ),
+    (["outage", "nobody", "--orbits", "0.1"], "outage.deputy: 'nobody' is not one of lqr, ddvi"),
 ]
 """A fault the short mission's deployment refuses, and what ``ddvi fault`` says of it."""
 
@@ -686,6 +695,7 @@ def test_a_fault_the_runs_deployment_allows_goes_on_to_the_run(
         (["panel", "a"], 2, "give --area-factor F in (0, 100] and/or --stuck-angle DEG in (0, 90)"),
         (["panel", "a", "--stuck-angle", "95"], 2, "normal_angle must lie in (0, 90) deg"),
         (["bias", "a"], 2, "give --position X Y Z"),
+        (["outage", "a", "--orbits", "0"], 2, "give --orbits N (> 0)"),
         (["kill", "ctrl-a", "--timeout", "0.5"], 1, "no clock from run 'norun'"),
     ],
 )

@@ -14,7 +14,7 @@ import pytest
 
 import services.flight.inprocess
 from services.config import deployment_from_table, read_table
-from services.ground import report
+from services.ground import report, scoring
 from services.ground.campaign import run as campaign_run
 from services.ground.campaign.dispersions import spec_from_table
 from services.ground.campaign.report import stats_table
@@ -96,9 +96,11 @@ def _report_summary(tmp_path: Path, table: dict, flights: dict, monkeypatch) -> 
     return report.write_report(tmp_path, data, completed=True, monitor_counters={})
 
 
-def _fake_in_process(flights: dict):
+def _fake_in_process(flights: dict, monkeypatch: pytest.MonkeyPatch):
     """``run_in_process`` that returns the flights as its records (controller: the last gains
-    flown, their source and every switch to learned gains)."""
+    flown, their source and every switch to learned gains), their Hill states as the truth
+    (the frame's transformation is not what is compared: the report's is faked alike)."""
+    monkeypatch.setattr(scoring, "truth_hill", lambda dep, chief, deputy: deputy)
 
     def run(dep, timing=None):
         out = {}
@@ -111,6 +113,11 @@ def _fake_in_process(flights: dict):
             out[d.name] = {
                 "t": f["t"],
                 "x": x,
+                "truth_t": f["t"],
+                "chief_rv": np.zeros_like(x),
+                "rv": x,
+                "links": {},
+                "environment": {},
                 "u": np.zeros(len(f["t"])),
                 "log": [f["log"]],
                 "controller": ctrl,
@@ -128,7 +135,8 @@ def test_the_report_sweeps_and_campaigns_score_a_deputy_alike(
     dep = deployment_from_table(table)
     flights = _flight(table, history)
     summary = _report_summary(tmp_path / "run", table, flights, monkeypatch)
-    monkeypatch.setattr(services.flight.inprocess, "run_in_process", _fake_in_process(flights))
+    fake = _fake_in_process(flights, monkeypatch)
+    monkeypatch.setattr(services.flight.inprocess, "run_in_process", fake)
 
     def fake_ddvi_run(cmd, **kwargs):  # `ddvi run` in a campaign's folder: the same report
         folder = Path(cmd[cmd.index("run") + 1]).parent / "runs" / "scored"
@@ -190,7 +198,8 @@ def test_a_deputy_that_cannot_hold_its_slot_is_noted_by_every_path(
     table["deputy"][0]["area_factor"] = 0.5
     flights = _flight(table, "learned")
     summary = _report_summary(tmp_path, table, flights, monkeypatch)
-    monkeypatch.setattr(services.flight.inprocess, "run_in_process", _fake_in_process(flights))
+    fake = _fake_in_process(flights, monkeypatch)
+    monkeypatch.setattr(services.flight.inprocess, "run_in_process", fake)
     row, _ = campaign_run.execute({"run": 0, "seed": 1, "table": table, "mode": "inprocess"})
     (swept,) = [r for r in summary_rows({"noise": 0.0}, summary) if r["deputy"] == name]
     for can_hold, note in (

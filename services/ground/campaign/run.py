@@ -75,7 +75,7 @@ def inprocess_metrics(dep: Deployment) -> dict[str, Any]:
     cannot_hold = holding_notes(dep)
     row: dict[str, Any] = {}
     for d in dep.deputy:
-        outcome = inprocess_outcome(d, out[d.name])
+        outcome = inprocess_outcome(dep, d, out[d.name])
         metrics = deputy_metrics(dep, d, outcome, cannot_hold=cannot_hold.get(d.name, ""))
         row.update(_columns(d.name, d.label, metrics))
     return row
