@@ -29,8 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ddvi_core.anderson import DEFAULT_MEMORY
-from ddvi_core.policy_learning import iterate
+from ddvi_core.policy_learning import IterationSettings, iterate
 from ddvi_core.regression import (
     EquilibratedTheta,
     RiccatiMap,
@@ -44,11 +43,12 @@ from ddvi_core.regression import (
     solve_output_regulation,
 )
 from ddvi_core.value_iteration import (
-    BoundSchedule,
     Scaling,
-    StepSequence,
 )
 from ddvi_core.vec import triangle_size
+
+RANK_RTOL = 1e-10
+"""Theta_j's rank counts the singular values above this times the largest."""
 
 __all__ = [
     "DDVIResult",
@@ -416,20 +416,13 @@ def learn_from_data(
     C: ArrayLike | None = None,
     E: ArrayLike | None = None,
     F: ArrayLike | None = None,
-    steps: StepSequence | None = None,
-    bounds: BoundSchedule | None = None,
-    tol: float = 1e-6,
-    max_iterations: int = 200_000,
+    iteration: IterationSettings | None = None,
     P0: ArrayLike | None = None,
+    K0: ArrayLike | None = None,
     Qbar: ArrayLike | None = None,
     Rbar: ArrayLike | None = None,
-    rank_rtol: float = 1e-10,
     state_scale: ArrayLike | None = None,
     translation: ArrayLike | None = None,
-    rule: str = "residual",
-    method: str = "vi",
-    K0: ArrayLike | None = None,
-    memory: int = DEFAULT_MEMORY,
 ) -> DDVIResult:
     """Algorithm 2 on collected interval data.
 
@@ -448,16 +441,13 @@ def learn_from_data(
     xbar = x is all along-track offset, the regression is dominated by P_yy y^2, and any
     unmodelled acceleration enters it scaled by the offset.
 
-    ``rule`` is the stopping rule ("residual" or the scale-free "relative", on the gain's
-    estimated relative error: :mod:`ddvi_core.continuation`); an ``adaptive`` step takes a
+    ``iteration`` says how it iterates (:class:`ddvi_core.policy_learning.IterationSettings`:
+    value iteration by default; policy iteration and the hybrid start from the stabilising
+    gain ``K0`` (m, n), SI units, value iteration from ``P0``); an ``adaptive`` step takes a
     fraction of the Euler stability limit of the current closed loop, read off the matrices
     the data's map implies (:func:`ddvi_core.regression.implied_plant`), and an ``implicit``
     step grows from that towards Newton's on the derivative of the data's map
-    (:mod:`ddvi_core.continuation`).  ``method``: "vi" (Algorithm 2), "pi" (policy
-    iteration on the same data from the stabilising gain ``K0`` (m, n), SI units) or "hybrid"
-    (value iteration until the gain is near the fixed point, then policy iteration):
-    :mod:`ddvi_core.policy_learning`.  ``memory``: value iteration's Anderson
-    acceleration over that many past steps (0: plain; :mod:`ddvi_core.anderson`).
+    (:mod:`ddvi_core.continuation`).
     """
     n, m, q = data.n, data.m, data.q
     Q, R = _checked_weights(data, Q, R, C, E, F)
@@ -470,23 +460,12 @@ def learn_from_data(
     X_list = exostate_offsets(C, F, S, n, q)
     X_off = 0.0 if translation is None else _translation_offset(data, translation, E) / S[:, None]
     thetas = equilibrated_thetas(n, m, q, X_list, X_off, R_s, scaled)
-    rank, condition = _checked_rank(thetas, data, needed, rank_rtol)
+    rank, condition = _checked_rank(thetas, data, needed, RANK_RTOL)
     maps = regression_maps(thetas)
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
     K0_s = np.zeros((m, n)) if K0 is None else np.asarray(K0, dtype=float) * S[None, :]
     P_s, _, k, resets, converged, _, history, why = iterate(
-        method,
-        RiccatiMap(maps[0], n, m),
-        Q_s,
-        R_s,
-        P0_s,
-        K0_s,
-        steps or StepSequence(),
-        bounds or BoundSchedule(),
-        tol,
-        max_iterations,
-        rule,
-        memory,
+        RiccatiMap(maps[0], n, m), Q_s, R_s, P0_s, K0_s, iteration or IterationSettings()
     )
     K_s, residual = regression_solution(maps[0], thetas[0], P_s, n, m)
     B_s, D_s, S_X = implied_matrices(maps, P_s, K_s, R_s, n, m, q)

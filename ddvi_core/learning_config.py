@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from ddvi_core.tables import FlatRowMatrix
 
 if TYPE_CHECKING:
+    from ddvi_core.policy_learning import IterationSettings
     from ddvi_core.problem import RegulationProblem
     from ddvi_core.value_iteration import BoundSchedule, StepSequence
 
@@ -171,6 +172,20 @@ class LearningConfig:
         from ddvi_core.value_iteration import BoundSchedule
 
         return BoundSchedule(self.bounds, self.bound_base)
+
+    def iteration_settings(self, method: str = "vi") -> IterationSettings:
+        """How the learner iterates (``ddvi_core.policy_learning.IterationSettings``): its step,
+        bounds, tolerance, iteration limit and stopping rule, by ``method``."""
+        from ddvi_core.policy_learning import IterationSettings
+
+        return IterationSettings(
+            method,
+            self.steps(),
+            self.bound_schedule(),
+            self.tol,
+            self.max_iterations,
+            self.stopping,
+        )
 
     def validate(self, problem: RegulationProblem) -> None:
         def bad(key: str, why: str) -> SystemFileError:

@@ -26,10 +26,12 @@ gain 1e7 too large, which policy iteration then only halves per step.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ddvi_core.anderson import DEFAULT_MEMORY
 from ddvi_core.continuation import basis_images
 from ddvi_core.regression import RiccatiMap, implied_plant
 from ddvi_core.value_iteration import (
@@ -41,6 +43,7 @@ from ddvi_core.value_iteration import (
 
 __all__ = [
     "LEARNING_METHODS",
+    "IterationSettings",
     "basis_images",
     "is_positive_definite",
     "iterate",
@@ -178,26 +181,51 @@ def _hybrid(
     return (*out[:2], out[2] + vi_iterations, resets, *out[4:])
 
 
+@dataclass(frozen=True)
+class IterationSettings:
+    """How the learner iterates on its data.
+
+    method : one of :data:`LEARNING_METHODS`: "vi" (value iteration, the paper's Algorithm
+        2), "pi" (policy iteration from a stabilising gain) or "hybrid" (value iteration
+        until the gain is near the fixed point, then policy iteration).
+    steps, bounds : value iteration's step sequence and its bounded sets' radii.
+    tol, max_iterations : the stopping rule's tolerance, and the iterations allowed.
+    rule : the stopping rule, "residual" (|F(P)| < tol max(1, |P|)) or "relative" (the
+        scale-free estimate of |K - K*| / |K| at most tol, :mod:`ddvi_core.continuation`).
+    memory : value iteration's Anderson acceleration over that many past steps (0: plain;
+        :mod:`ddvi_core.anderson`).
+    """
+
+    method: str = "vi"
+    steps: StepSequence = field(default_factory=StepSequence)
+    bounds: BoundSchedule = field(default_factory=BoundSchedule)
+    tol: float = 1e-6
+    max_iterations: int = 200_000
+    rule: str = "residual"
+    memory: int = DEFAULT_MEMORY
+
+    def __post_init__(self) -> None:
+        if self.method not in LEARNING_METHODS:
+            raise ValueError(
+                f"method must be one of {', '.join(LEARNING_METHODS)}, got {self.method!r}"
+            )
+
+
 def iterate(
-    method: str,
     riccati_map: RiccatiMap,
     Q_s: NDArray,
     R_s: NDArray,
     P0_s: NDArray,
     K0_s: NDArray,
-    steps: StepSequence,
-    bounds: BoundSchedule,
-    tol: float,
-    max_iterations: int,
-    rule: str,
-    memory: int = 0,
+    settings: IterationSettings,
 ) -> LoopResult:
-    """The learner's iteration by ``method`` (one of :data:`LEARNING_METHODS`), in scaled
-    units: value iteration from P0_s (n, n) (Anderson-accelerated over ``memory`` steps when
-    positive), policy iteration from K0_s (m, n), or the hybrid.
-    The step and stopping rules read the closed loop's eigenvalues off the matrices the data's
-    map implies (:func:`ddvi_core.regression.implied_plant`), never A or B.
+    """The learner's iteration as ``settings`` say, in scaled units: value iteration from
+    P0_s (n, n), policy iteration from K0_s (m, n), or the hybrid.  The step and stopping
+    rules read the closed loop's eigenvalues off the matrices the data's map implies
+    (:func:`ddvi_core.regression.implied_plant`), never A or B.
     """
+    method, steps, bounds = settings.method, settings.steps, settings.bounds
+    tol, max_iterations = settings.tol, settings.max_iterations
     A_d, B_d = implied_plant(riccati_map, R_s)
 
     def closed_loop(K_s: NDArray) -> NDArray:
@@ -214,8 +242,8 @@ def iterate(
             tol,
             max_iterations,
             closed_loop=closed_loop,
-            rule=rule,
-            memory=memory,
+            rule=settings.rule,
+            memory=settings.memory,
         )
     if method == "pi":
         return policy_iteration_loop(riccati_map, Q_s, R_s, K0_s, tol, max_iterations)

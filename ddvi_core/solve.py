@@ -202,13 +202,8 @@ def _learn(system: System, method: str, seed: int) -> Solution:
             C=pr.C,
             E=pr.E,
             F=pr.F,
-            steps=cfg.steps(),
-            bounds=cfg.bound_schedule(),
-            tol=cfg.tol,
-            max_iterations=cfg.max_iterations,
+            iteration=cfg.iteration_settings(DATA_METHODS[method]),
             state_scale=cfg.state_scale,
-            rule=cfg.stopping,
-            method=DATA_METHODS[method],
             K0=cfg.K0_matrix(pr),
         )
     t2 = time.perf_counter()

@@ -8,12 +8,12 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable
-from fnmatch import fnmatchcase
 from typing import Any
 
 import zenoh
 
 from services.bus.session import key_prefix
+from services.interface.keys import key_matches
 from services.interface.topics import alive_topic
 
 log = logging.getLogger("ddvi.bus")
@@ -22,10 +22,10 @@ log = logging.getLogger("ddvi.bus")
 def watch_alive(
     session: zenoh.Session, run: str, pattern: str, on_change: Callable[[str, bool], None]
 ) -> Any:
-    """Call ``on_change(service, alive)`` for every service matching ``pattern`` (a shell-style
-    glob, ``ctrl-*``) whose liveliness token is there now or comes and goes later.  Returns the
-    zenoh subscriber: undeclare it when done.  ``on_change`` runs on a zenoh thread and must
-    not raise."""
+    """Call ``on_change(service, alive)`` for every service matching ``pattern`` (a key
+    expression, ``ctrl-*``: ``services.interface.keys``) whose liveliness token is there now
+    or comes and goes later.  Returns the zenoh subscriber: undeclare it when done.
+    ``on_change`` runs on a zenoh thread and must not raise."""
     # a service name is one key chunk, so zenoh's '*' hears every token and the last chunk of
     # a token's key is its service
     key = key_prefix(run) + alive_topic("*")
@@ -33,7 +33,7 @@ def watch_alive(
     def on_sample(sample: zenoh.Sample) -> None:
         try:
             name = str(sample.key_expr).rsplit("/", 1)[-1]
-            if fnmatchcase(name, pattern):  # zenoh's own '*' is a whole chunk only
+            if key_matches(pattern, name):
                 on_change(name, sample.kind == zenoh.SampleKind.PUT)
         except Exception:
             log.exception("liveliness callback failed")

@@ -11,12 +11,13 @@ defaults (:data:`MISSION_LEARNING`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from fnmatch import fnmatchcase
 from typing import Any
 
 from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
+from services.interface.keys import key_matches
 from services.interface.links import LinkRule, LinkSpec, rule_latency
+from services.interface.topics import concrete_topics
 
 __all__ = [
     "DEPUTY_LEARNING_KEYS",
@@ -187,14 +188,15 @@ class Link(LinkSpec):
     """One impaired link (docs/design.md, "The bus"): a LinkSpec's impairments (``delay``,
     ``jitter`` s, uniform on [0, jitter] on top of the delay; ``loss``, ``duplicate``,
     ``reorder`` probabilities) on the messages from the publishing service(s) to the
-    subscribing service(s), on the topics that match; names and topics are shell-style globs
-    (``nav-*``, ``cmd/*/att``).  The first [[link]] that matches a message applies.  Times are
-    simulation seconds in lock-step mode, wall seconds in real-time mode; the clock is never
-    delayed (it is the time base), and the monitor records what is published, unimpaired."""
+    subscribing service(s), on the topics that match; names and topics are key expressions
+    (``services.interface.keys``: ``nav-*``, ``cmd/*/att``, ``**`` for every topic).  The
+    first [[link]] that matches a message applies.  Times are simulation seconds in lock-step
+    mode, wall seconds in real-time mode; the clock is never delayed (it is the time base),
+    and the monitor records what is published, unimpaired."""
 
     publisher: str = "*"
     subscriber: str = "*"
-    topic: str = "*"
+    topic: str = "**"
 
 
 @dataclass(frozen=True)
@@ -279,6 +281,14 @@ class Deployment:
             names += [f"nav-{d.name}", f"ctrl-{d.name}"]
         return [*names, "environment"]
 
+    def topics(self) -> dict[str, str]:
+        """Every topic a run of this deployment may carry (``topics.TOPOLOGY``, below
+        ``ddvi/<run>/``) and its schema."""
+        deputies = [d.name for d in self.deputy]
+        return concrete_topics(
+            {"craft": ["chief", *deputies], "sc": deputies, "service": [*self.services, "launcher"]}
+        )
+
     def session_lease_ms(self) -> int:
         """Every session's lease (zenoh ``transport/link/tx/lease``), the hub's and each
         service's: run.hang_timeout plus ``LEASE_MARGIN``, so that a frozen service (and the
@@ -291,7 +301,7 @@ class Deployment:
         return [
             LinkRule(k.publisher, k.topic, k.spec)
             for k in self.link
-            if fnmatchcase(subscriber, k.subscriber)
+            if key_matches(k.subscriber, subscriber)
         ]
 
     def link_latency(self, publisher: str, subscriber: str, topic: str) -> float:
@@ -302,14 +312,14 @@ class Deployment:
     def restart_policy(self, service: str) -> Restart:
         """The [[restart]] that applies to ``service`` (by default: never restart)."""
         for r in self.restart:
-            if fnmatchcase(service, r.service):
+            if key_matches(r.service, service):
                 return r
         return Restart(service, "never", 0)
 
     def host_of(self, service: str) -> int | None:
         """The index of the [[host]] a service runs on (None: the launcher's own)."""
         for k, h in enumerate(self.host):
-            if any(fnmatchcase(service, pattern) for pattern in h.services):
+            if any(key_matches(pattern, service) for pattern in h.services):
                 return k
         return None
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import fields, replace
-from fnmatch import fnmatchcase
 from typing import Any
 
 from ddvi_core.relnav import FRAMES
@@ -31,7 +30,8 @@ from services.config.ranges import (
     check_ranges,
     mission_seconds,
 )
-from services.interface.links import impairs_truth
+from services.interface.keys import PatternError, check_pattern, key_matches
+from services.interface.links import UNIMPAIRED, impairs_truth
 
 __all__ = [
     "CHECKS",
@@ -251,9 +251,18 @@ def check_deputies(dep: Deployment) -> None:
         _check_deputy_learning(w, d)
 
 
+def _pattern(where: str, pattern: str) -> str:
+    """``pattern`` if it is a key expression (``services.interface.keys``); else
+    DeploymentError at ``where`` saying what is wrong."""
+    try:
+        return check_pattern(pattern)
+    except PatternError as exc:
+        raise DeploymentError(f"{where}: {exc}") from None
+
+
 def _matches_a_service(where: str, pattern: str, services: list[str]) -> list[str]:
-    """The services a glob names; none raises DeploymentError at ``where``."""
-    matched = [s for s in services if fnmatchcase(s, pattern)]
+    """The services a pattern names; none raises DeploymentError at ``where``."""
+    matched = [s for s in services if key_matches(_pattern(where, pattern), s)]
     if not matched:
         raise DeploymentError(
             f"{where}: {pattern!r} matches no service; services: {', '.join(services)}"
@@ -267,7 +276,14 @@ def check_link(dep: Deployment, w: str, link: Link) -> None:
     services = dep.services
     for key in ("publisher", "subscriber"):
         _matches_a_service(f"{w}.{key}", getattr(link, key), services)
-    if any(impairs_truth(link.publisher, s) for s in services if fnmatchcase(s, link.subscriber)):
+    carried = [t for t in dep.topics() if t not in UNIMPAIRED]
+    if not any(key_matches(_pattern(f"{w}.topic", link.topic), t) for t in carried):
+        raise DeploymentError(
+            f"{w}.topic: {link.topic!r} matches no topic a link carries ('*' is one chunk of a "
+            "topic, '**' any number of them: every topic is '**'); e.g. 'nav/*/state', "
+            "'cmd/*/att', 'exo/state'"
+        )
+    if any(impairs_truth(link.publisher, s) for s in services if key_matches(link.subscriber, s)):
         raise DeploymentError(
             f"{w}: impairs the environment's truth to navigation "
             f"({link.publisher!r} -> {link.subscriber!r}); impair navigation -> controller "
@@ -453,9 +469,8 @@ def check_hosts(dep: Deployment) -> None:
             raise DeploymentError(f"{w}.netns: {h.netns!r} is used twice")
         seen.add(h.netns)
         for pattern in h.services:
-            if not any(fnmatchcase(s, pattern) for s in dep.services):
-                raise DeploymentError(f"{w}.services: {pattern!r} matches no service")
-        if any(fnmatchcase("monitor", p) for p in h.services):
+            _matches_a_service(f"{w}.services", pattern, dep.services)
+        if any(key_matches(p, "monitor") for p in h.services):
             raise DeploymentError(f"{w}.services: the monitor runs beside the launcher")
 
 

@@ -40,7 +40,7 @@ from ddvi_core.model_fit import IntegralHistory
 from services.config import Deployment
 from services.flight.actuation import Actuation
 from services.flight.learners import Learner, LearnerExostate, make_learner
-from services.flight.phases import Gains, Phase, PhaseMachine
+from services.flight.phases import Gains, Phase, PhaseMachine, Schedule
 from services.flight.relearning import ChangeWatch, Relearning
 from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
 
@@ -77,17 +77,15 @@ class Controller:
         else:
             q = self.exosystem[1].shape[0]
             self.learner = make_learner(dep, self.deputy, self.problem, q)
-            self.phases = PhaseMachine(Phase.EXPLORING, self.initial_gains())
-            self.next_attempt = lrn.learn_at_orbits * self.orbit
+            # samples before data_from_orbits are not the learner's (the initial transient)
+            schedule = Schedule(lrn.data_from_orbits * self.orbit, lrn.learn_at_orbits * self.orbit)
+            self.phases = PhaseMachine(Phase.EXPLORING, self.initial_gains(), schedule)
         self.iteration = 0
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
-        # samples before this are not the learner's (the initial transient; see rejoin)
-        self.collect_from = lrn.data_from_orbits * self.orbit
         self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
         self.learn_attempts = 0
         self.watch = ChangeWatch(lrn, self.deputy.navigation.period, self.orbit)
-        self.relearning: Relearning | None = None  # while re-learning
         self.learned_at: list[float] = []  # every switch to learned gains (s)
         self.abandoned_at: list[float] = []  # every return to the old gains (s)
 
@@ -114,6 +112,18 @@ class Controller:
     @property
     def converged(self) -> bool:
         return self.phases.converged
+
+    @property
+    def next_attempt(self) -> float:
+        """When an exploring phase attempts to learn next (s; inf: not exploring, or no more)."""
+        schedule = self.phases.schedule
+        return math.inf if schedule is None else schedule.next_attempt
+
+    @property
+    def collect_from(self) -> float:
+        """From when an exploring phase collects for its learner (s; inf: not exploring)."""
+        schedule = self.phases.schedule
+        return math.inf if schedule is None else schedule.collect_from
 
     def initial_gains(self) -> Gains:
         """K0 and no feedforward, what a learner explores on."""
@@ -156,8 +166,10 @@ class Controller:
         if self.mode == "lqr":
             return f"restarted: flying the LQR gains from t = {t:.0f} s"
         delay = self.actuation.delay
-        self.collect_from = math.ceil((t + delay) / self.fsw - 1e-9) * self.fsw
-        self.next_attempt = t + self.deputy.learning.learn_at_orbits * self.orbit
+        self.phases.reschedule(
+            collect_from=math.ceil((t + delay) / self.fsw - 1e-9) * self.fsw,
+            next_attempt=t + self.deputy.learning.learn_at_orbits * self.orbit,
+        )
         return (
             f"restarted: learning starts over (the data and gains of the previous process are "
             f"lost); exploring from t = {t:.0f} s, data from t = {self.collect_from:.0f} s, "
@@ -216,7 +228,7 @@ class Controller:
         learned = self.learned_at[-1] if self.learned_at else t
         since = t + lrn.relearn_settle_orbits * self.orbit
         window = lrn.relearn_window_orbits * self.orbit
-        self.relearning = Relearning(
+        before = Relearning(
             self.K,
             self.L,
             self.exosystem,
@@ -227,10 +239,10 @@ class Controller:
             window,
         )
         self.exostate.add_density_ratio()
-        self.phases.move(Phase.RELEARNING, self.initial_gains())  # K0 until it re-learns
+        # K0 until it re-learns
+        schedule = Schedule(since, since + window)
+        self.phases.move(Phase.RELEARNING, self.initial_gains(), schedule, before)
         learner.store = learner.new_store(self.exosystem[1].shape[0])
-        self.collect_from = since
-        self.next_attempt = since + window
         return (
             f"fault detector: at t = {t:.0f} s {seen}; exploring again on K0, re-learning at "
             f"t = {self.next_attempt:.0f} s from the data from t = {since:.0f} s on"
@@ -272,14 +284,13 @@ class Controller:
         is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
         fault's bias (measured: 18.5 km off at orbit 50 with a panel stuck at 60 deg, against
         673 m with the old gains back after 5 attempts).  Returns the log line."""
-        lrn, before = self.deputy.learning, self.relearning
+        lrn, before = self.deputy.learning, self.phases.before
         if before is not None:
             before.failures += 1
             if before.failures >= lrn.relearn_max_attempts:
                 self.exostate.exosystem = before.exosystem
                 self.learner.store = before.store
                 self.rank, self.rank_needed = before.rank
-                self.relearning = None
                 self.watch.disarm()
                 self.phases.move(Phase.LEARNED, Gains(before.K, before.L, "fallback"))
                 self.abandoned_at.append(t)
@@ -287,21 +298,22 @@ class Controller:
                     f"{why}; re-learning abandoned after {before.failures} attempts: flying "
                     f"the gains learned at t = {before.learned_at:.0f} s again, fault detector off"
                 )
-        self.next_attempt = t + lrn.retry_orbits * self.orbit
+        retry = t + lrn.retry_orbits * self.orbit
         until = lrn.learn_until_orbits * self.orbit
-        if lrn.learn_until_orbits > 0 and self.next_attempt > until + 1e-6:
+        if lrn.learn_until_orbits > 0 and retry > until + 1e-6:
             # far from where it started the linear model no longer holds the data (a deputy
             # that cannot hold its slot drifts 100 km and more), so a late fit is not trusted
-            self.next_attempt = math.inf
+            self.phases.reschedule(next_attempt=math.inf)
             return f"{why}; no gain accepted by orbit {lrn.learn_until_orbits:g}: learning stops"
+        self.phases.reschedule(next_attempt=retry)
         return f"{why}, exploring on"
 
     def learning_window(self, t: float) -> float:
         """The first sample time (s) an attempt at t learns from: while re-learning, the
         newest window since settling; else the last ``window_orbits`` (0: all the data, a
         window that grows with every retry)."""
-        if self.relearning is not None:
-            return self.relearning.window_start(t)
+        if self.phases.before is not None:
+            return self.phases.before.window_start(t)
         return self.learner.window_start(t)
 
     def learn(self, t: float) -> str:
@@ -317,10 +329,9 @@ class Controller:
             return self.learning_failed(t, f"learning at t = {t:.0f} s {attempt.refused}")
         r, info = attempt.result, attempt.info
         self.result = r
-        relearned = self.relearning is not None
+        relearned = self.phases.before is not None
         self.phases.move(Phase.LEARNED, Gains(r.K, r.L, learner.source))
         self.iteration = info.get("iterations", 0)
-        self.relearning = None
         self.learned_at.append(t)
         self.learn_info = {"wall_s": time.perf_counter() - t0, **info}
         armed = self.watch.arm(since, self.exosystem[1].shape[0]) if lrn.relearn else ""

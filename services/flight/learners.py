@@ -27,7 +27,6 @@ import scipy.linalg
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.model_fit import IntegralHistory
 from ddvi_core.simulate import Exploration
-from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from services.config import Deployment, Deputy
 from services.flight.fitting import fit_attempt
 from services.flight.station import StationKeeping
@@ -129,10 +128,7 @@ class ValueIterationLearner(Learner):
             C=C,
             E=E,
             F=F,
-            steps=StepSequence(lrn.step, lrn.step_size),
-            bounds=BoundSchedule(lrn.bounds, lrn.bound_base),
-            tol=lrn.tol,
-            max_iterations=lrn.max_iterations,
+            iteration=lrn.iteration_settings(),
             state_scale=[1.0, 1.0, n, n],
             translation=self.translation,
         )

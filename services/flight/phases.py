@@ -5,8 +5,13 @@ exploration, collecting for its learner), is ``learned`` once a gain is taken, a
 ``learning.relearn`` goes ``relearning`` (K0 and the exploration again) when its change
 detector sees the plant change; from there it is ``learned`` again, on the new gains or, when
 re-learning fails too often, on the gains of before the detection.  The phase in force holds
-the gains it flies (``Gains``: K, L and their source), so that no move changes one without
-the other.
+what it flies and when it learns: its gains (``Gains``: K, L and their source), an exploring
+phase its ``Schedule`` (data from when, the next attempt when), re-learning what flew before
+the detection (``Relearning``); so that no move changes one without the others.
+
+The safe attitude is not a phase of the controller: it is what a step flies when navigation
+is stale (``services.flight.control_loop.StaleNavigation``), whatever the phase, which goes
+on (a learner explores on, and collects nothing it does not measure).
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
+
+from services.flight.relearning import Relearning
 
 
 class Phase(StrEnum):
@@ -45,6 +52,11 @@ SOURCES: dict[Phase, str] = {
 learner's name, or "fallback")."""
 
 
+EXPLORING_PHASES = (Phase.EXPLORING, Phase.RELEARNING)
+"""The phases that fly K0 with the exploration and collect for the learner: they have a
+``Schedule``."""
+
+
 class PhaseTransitionError(RuntimeError):
     """A move the controller's phases do not allow: a bug in the controller, not bad input."""
 
@@ -60,26 +72,60 @@ class Gains:
     source: str
 
 
+@dataclass(frozen=True)
+class Schedule:
+    """When an exploring phase learns: the learner takes the samples from ``collect_from`` on
+    and attempts at ``next_attempt`` (s; inf: no more attempts)."""
+
+    collect_from: float
+    next_attempt: float
+
+
 class PhaseMachine:
-    """The phase in force and the gains it flies; :meth:`move` is the only way to change the
-    phase, and it changes the gains with it.  Whether the gains are converged follows from
-    the phase."""
+    """The phase in force, the gains it flies, an exploring phase's schedule and, while
+    re-learning, what flew before; :meth:`move` is the only way to change the phase, and it
+    changes them all.  Whether the gains are converged follows from the phase."""
 
-    def __init__(self, start: Phase, gains: Gains) -> None:
-        self.current = start
-        self.gains = self._checked(start, gains)
+    def __init__(self, start: Phase, gains: Gains, schedule: Schedule | None = None) -> None:
+        self._enter(start, gains, schedule, None)
 
-    def move(self, to: Phase, gains: Gains) -> None:
-        """Enter phase ``to`` flying ``gains``; raises PhaseTransitionError if TRANSITIONS
-        has no such move or the phase does not fly gains of that source."""
+    def move(
+        self,
+        to: Phase,
+        gains: Gains,
+        schedule: Schedule | None = None,
+        before: Relearning | None = None,
+    ) -> None:
+        """Enter phase ``to`` flying ``gains``, with the ``schedule`` an exploring phase has
+        and, into ``relearning``, what flew ``before``; raises PhaseTransitionError if
+        TRANSITIONS has no such move or the phase does not fly gains of that source."""
         if (self.current, to) not in TRANSITIONS:
             allowed = [str(b) for a, b in TRANSITIONS if a == self.current] or ["none"]
             raise PhaseTransitionError(
                 f"controller phase {self.current!s} cannot move to {to!s} (from "
                 f"{self.current!s} it may move to: {', '.join(allowed)})"
             )
+        self._enter(to, gains, schedule, before)
+
+    def _enter(
+        self, to: Phase, gains: Gains, schedule: Schedule | None, before: Relearning | None
+    ) -> None:
+        if (to in EXPLORING_PHASES) != (schedule is not None):
+            needs = "needs a" if to in EXPLORING_PHASES else "has no"
+            raise PhaseTransitionError(f"controller phase {to!s} {needs} learning schedule")
+        if (to is Phase.RELEARNING) != (before is not None):
+            raise PhaseTransitionError(
+                "re-learning, and only re-learning, keeps the gains flown before the detection"
+            )
         self.gains = self._checked(to, gains)
-        self.current = to
+        self.current, self.schedule, self.before = to, schedule, before
+
+    def reschedule(self, **changes: float) -> None:
+        """An exploring phase's schedule changed (``collect_from``, ``next_attempt``): a
+        retry, or a restart into a running mission; the phase and its gains unchanged."""
+        if self.schedule is None:
+            raise PhaseTransitionError(f"controller phase {self.current!s} has no schedule")
+        self.schedule = dataclasses.replace(self.schedule, **changes)
 
     def trim(self, L: NDArray[np.float64]) -> None:
         """The feedforward gain trimmed on station: the phase, K and the source unchanged."""
@@ -104,4 +150,4 @@ class PhaseMachine:
     def exploring(self) -> bool:
         """Flying K0 with the exploration and collecting for the learner: before the first
         learning or, after a detected change, before re-learning."""
-        return self.current in (Phase.EXPLORING, Phase.RELEARNING)
+        return self.current in EXPLORING_PHASES

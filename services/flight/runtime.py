@@ -26,7 +26,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from fnmatch import fnmatchcase
 from typing import Any
 
 import zenoh
@@ -54,6 +53,7 @@ from services.config import (
 )
 from services.flight.health import HANG_STATUS, HangError
 from services.interface import Message, fault_topic, log_topic, stats_topic
+from services.interface.keys import PatternError, key_matches
 from services.model import duration
 
 # zenoh reads it when a session opens: every service's, not the launcher's (SERVICE_ZENOH_RUNTIME)
@@ -106,13 +106,18 @@ class ServiceContext:
 
     def on_link_fault(self, _topic: str, msg: Message) -> None:
         """``fault/link`` (``ddvi fault RUN link``): when this service matches the fault's
-        target (the subscriber glob), impair what it receives from ``params.from`` (a publisher
-        glob) on ``params.topic`` from now on, as a deployment's [[link]] would; refused, as
-        that [[link]] would be, unless the deployment allows it (``check_link_fault``)."""
+        target (the subscriber pattern), impair what it receives from ``params.from`` (a
+        publisher pattern) on ``params.topic`` from now on, as a deployment's [[link]] would;
+        refused, as that [[link]] would be, unless the deployment allows it
+        (``check_link_fault``)."""
         target, p = msg.body["target"], msg.body["params"]
-        if self.name == "monitor" or not fnmatchcase(self.name, target):
-            return  # the monitor records what is published, unimpaired
         where = f"fault link {target}: "
+        try:
+            if self.name == "monitor" or not key_matches(target, self.name):
+                return  # the monitor records what is published, unimpaired
+        except PatternError as exc:
+            self.log("warning", where + f"refused at {self.name} ({exc})", msg.t)
+            return
         try:
             numbers = {k: p[k] for k in LINK_PARAMETERS if k in p}
             link = link_from_params(p.get("from", "*"), target, p.get("topic", "*"), numbers)

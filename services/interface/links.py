@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from fnmatch import fnmatchcase
 
+from services.interface.keys import key_matches
 from services.interface.topics import CLOCK, RECORDED
 
 UNIMPAIRED = (CLOCK, RECORDED)
@@ -57,9 +57,10 @@ class LinkSpec:
 class LinkRule:
     """Which messages a LinkSpec applies to, at one subscriber: those whose publishing service
     (the header's ``src``) matches ``publisher`` and whose topic (below ``ddvi/<run>/``) matches
-    ``topic``, both shell-style globs.  The clock and the recorder's acknowledgements are never
-    impaired: the emulator's time base and the ground's word on its recording, not flight
-    messages (a lock-step wait on an acknowledgement a link held would never end)."""
+    ``topic``, both key expressions (``services.interface.keys``).  The clock and the
+    recorder's acknowledgements are never impaired: the emulator's time base and the ground's
+    word on its recording, not flight messages (a lock-step wait on an acknowledgement a link
+    held would never end)."""
 
     publisher: str
     topic: str
@@ -68,8 +69,8 @@ class LinkRule:
     def matches(self, publisher: str, topic: str) -> bool:
         return (
             topic not in UNIMPAIRED
-            and fnmatchcase(publisher, self.publisher)
-            and fnmatchcase(topic, self.topic)
+            and key_matches(self.publisher, publisher)
+            and key_matches(self.topic, topic)
         )
 
 
@@ -82,10 +83,10 @@ def select_rule(rules: Sequence[LinkRule], publisher: str, topic: str) -> int | 
 
 
 def impairs_truth(publisher: str, subscriber: str) -> bool:
-    """Whether a link from ``publisher`` (a glob) to the service ``subscriber`` would impair
+    """Whether a link from ``publisher`` (a pattern) to the service ``subscriber`` would impair
     the environment's truth to a navigation service: it is what a sensor measures, not a
     message a flight link carries (and a lock-step loop could not tell it lost from late)."""
-    return subscriber.startswith("nav-") and fnmatchcase("environment", publisher)
+    return subscriber.startswith("nav-") and key_matches(publisher, "environment")
 
 
 def rule_latency(rules: Sequence[LinkRule], publisher: str, topic: str) -> float:

@@ -204,7 +204,7 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
         {
             "kind": Str(doc="kill, panel, bias, outage or link (its topic's)"),
             "target": Str(
-                doc="a service (kill), a deputy (panel, bias, outage), a subscriber glob (link)"
+                doc="a service (kill), a deputy (panel, bias, outage), a subscriber pattern (link)"
             ),
             "params": ScalarMap(
                 unit="per key",

@@ -149,8 +149,8 @@ def test_latency_runs_from_the_send_time() -> None:
 def test_rules_match_publisher_and_topic_but_never_the_clock_nor_the_recorder() -> None:
     rules = [
         LinkRule("nav-*", "nav/*/state", LinkSpec(delay=10.0)),
-        LinkRule("environment", "*", LinkSpec(loss=0.1)),
-        LinkRule("monitor", "*", LinkSpec(delay=1e5)),
+        LinkRule("environment", "**", LinkSpec(loss=0.1)),  # every topic: '*' is one chunk
+        LinkRule("monitor", "**", LinkSpec(delay=1e5)),
     ]
     assert select_rule(rules, "nav-lqr", "nav/lqr/state") == 0
     assert select_rule(rules, "nav-lqr", "stats/nav-lqr") is None

@@ -68,7 +68,7 @@ def test_access_control_gives_each_user_its_topics_only() -> None:
     }
     assert {p + "clock", p + "exo/state", p + "truth/*"} <= set(_puts(acl, "environment"))
     assert set(_puts(acl, OPERATOR)) == {
-        p + f"fault/{k}" for k in ("kill", "panel", "bias", "link")
+        p + f"fault/{k}" for k in ("kill", "panel", "bias", "outage", "link")
     }
     assert _puts(acl, OBSERVER) == []
     assert set(_puts(acl, "monitor")) == {p + "recorded", p + "stats/monitor", p + "log/monitor"}

@@ -17,6 +17,7 @@ from ddvi_core.learning import (
     unknowns_count,
 )
 from ddvi_core.lqr import solve_lqr
+from ddvi_core.policy_learning import IterationSettings
 from ddvi_core.regulator import solve_regulator_equations
 from ddvi_core.simulate import Exploration, exact_discretisation, simulate_zoh
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
@@ -73,8 +74,9 @@ def thrust():
         C=prob.C,
         E=prob.E,
         F=prob.F,
-        steps=StepSequence("constant", 0.02),
-        bounds=BoundSchedule("geometric"),
+        iteration=IterationSettings(
+            steps=StepSequence("constant", 0.02), bounds=BoundSchedule("geometric")
+        ),
         state_scale=[1, 1, 1, N_RATE, N_RATE, N_RATE],
     )
     return prob, col, res
@@ -150,8 +152,9 @@ def test_drag_rendezvous_learns_K() -> None:
         C=prob.C,
         E=prob.E,
         F=prob.F,
-        steps=StepSequence("constant", 0.01),
-        bounds=BoundSchedule("geometric"),
+        iteration=IterationSettings(
+            steps=StepSequence("constant", 0.01), bounds=BoundSchedule("geometric")
+        ),
         state_scale=[1, 1, N_RATE, N_RATE],
     )
     K_star = solve_lqr(prob.A, prob.B, prob.Q, prob.R).K
@@ -434,8 +437,9 @@ def _learn_far(prob, data, translation):
         C=prob.C,
         E=prob.E,
         F=prob.F,
-        steps=StepSequence("constant", 0.01),
-        bounds=BoundSchedule("geometric"),
+        iteration=IterationSettings(
+            steps=StepSequence("constant", 0.01), bounds=BoundSchedule("geometric")
+        ),
         state_scale=[1, 1, N_RATE, N_RATE],
         translation=translation,
     )

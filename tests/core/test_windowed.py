@@ -9,6 +9,7 @@ import pytest
 
 from ddvi_core.learning import IntervalCollector, learn_from_data
 from ddvi_core.lqr import solve_lqr
+from ddvi_core.policy_learning import IterationSettings
 from ddvi_core.simulate import Exploration, simulate_zoh
 from ddvi_core.value_iteration import BoundSchedule, StepSequence
 from ddvi_core.windowed import WindowedCollector, window
@@ -26,8 +27,9 @@ def _learn(collector) -> tuple[float, float]:
         Q,
         R,
         time_unit=1.0,
-        steps=StepSequence("constant", 0.05),
-        bounds=BoundSchedule("geometric"),
+        iteration=IterationSettings(
+            steps=StepSequence("constant", 0.05), bounds=BoundSchedule("geometric")
+        ),
         state_scale=[1.0, 1.0],
     )
     assert r.converged, r.message

@@ -378,7 +378,7 @@ def test_learner_pairs_samples_with_the_command_acting_through_a_delayed_link() 
     command, not the newest one the controller issued."""
     table = read_table(None)
     table["link"] = [
-        {"publisher": "ctrl-ddvi", "subscriber": "environment", "topic": "cmd/*", "delay": 90.0}
+        {"publisher": "ctrl-ddvi", "subscriber": "environment", "topic": "cmd/*/att", "delay": 90.0}
     ]
     ctrl = Controller(deployment_from_table(table), "ddvi")
     assert ctrl.actuation.delay == 90.0

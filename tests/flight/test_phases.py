@@ -1,5 +1,6 @@
 """The controller's phases: the moves the transition table allows, the gains each phase may
-fly, and an error naming the phases for any other."""
+fly, the schedule an exploring phase has and what re-learning keeps, and an error naming the
+phases for any other."""
 
 from __future__ import annotations
 
@@ -8,21 +9,59 @@ import pytest
 
 from services.config import load_deployment
 from services.flight.control import Controller
-from services.flight.phases import Gains, Phase, PhaseMachine, PhaseTransitionError
+from services.flight.phases import Gains, Phase, PhaseMachine, PhaseTransitionError, Schedule
+from services.flight.relearning import Relearning
 
 K0 = Gains(np.zeros((1, 4)), np.zeros((1, 2)), "initial")
 LEARNED = Gains(np.ones((1, 4)), np.ones((1, 2)), "ddvi")
 FLOWN = {Phase.LQR: Gains(K0.K, K0.L, "lqr"), Phase.EXPLORING: K0, Phase.RELEARNING: K0}
+SCHEDULE = Schedule(collect_from=0.0, next_attempt=1000.0)
+BEFORE = Relearning(LEARNED.K, LEARNED.L, (), 500.0, None, (20, 20), 600.0, 400.0)
+
+
+def _args(phase: Phase) -> tuple:
+    """What entering ``phase`` takes: its gains, an exploring phase's schedule, and what
+    re-learning keeps of before."""
+    schedule = SCHEDULE if phase in (Phase.EXPLORING, Phase.RELEARNING) else None
+    before = BEFORE if phase is Phase.RELEARNING else None
+    return FLOWN.get(phase, LEARNED), schedule, before
+
+
+def _machine(start: Phase) -> PhaseMachine:
+    gains, schedule, _ = _args(start)
+    if start is not Phase.RELEARNING:
+        return PhaseMachine(start, gains, schedule)
+    phases = PhaseMachine(Phase.EXPLORING, K0, SCHEDULE)
+    phases.move(Phase.LEARNED, LEARNED)
+    phases.move(Phase.RELEARNING, *_args(Phase.RELEARNING))
+    return phases
 
 
 def test_a_learner_explores_learns_relearns_and_learns_again() -> None:
-    phases = PhaseMachine(Phase.EXPLORING, K0)
-    assert phases.exploring and not phases.converged
+    phases = PhaseMachine(Phase.EXPLORING, K0, SCHEDULE)
+    assert phases.exploring and not phases.converged and phases.schedule is SCHEDULE
     for to, exploring in ((Phase.LEARNED, False), (Phase.RELEARNING, True), (Phase.LEARNED, False)):
-        gains = FLOWN.get(to, LEARNED)
-        phases.move(to, gains)
+        gains, schedule, before = _args(to)
+        phases.move(to, gains, schedule, before)
         assert phases.current is to and phases.exploring is exploring
         assert phases.gains is gains and phases.converged is not exploring
+        assert phases.schedule is schedule and phases.before is before
+
+
+def test_an_exploring_phase_has_a_schedule_and_only_re_learning_keeps_what_flew_before() -> None:
+    with pytest.raises(PhaseTransitionError, match="phase exploring needs a learning schedule"):
+        PhaseMachine(Phase.EXPLORING, K0)
+    with pytest.raises(PhaseTransitionError, match="phase lqr has no learning schedule"):
+        PhaseMachine(Phase.LQR, FLOWN[Phase.LQR], SCHEDULE)
+    phases = PhaseMachine(Phase.EXPLORING, K0, SCHEDULE)
+    phases.reschedule(next_attempt=2000.0)  # a retry: the phase and its gains unchanged
+    assert phases.schedule == Schedule(0.0, 2000.0) and phases.gains is K0
+    phases.move(Phase.LEARNED, LEARNED)
+    with pytest.raises(PhaseTransitionError, match="phase learned has no schedule"):
+        phases.reschedule(next_attempt=3000.0)
+    with pytest.raises(PhaseTransitionError, match="only re-learning, keeps the gains"):
+        phases.move(Phase.RELEARNING, K0, SCHEDULE)  # without what flew before
+    assert phases.current is Phase.LEARNED
 
 
 @pytest.mark.parametrize(
@@ -36,9 +75,9 @@ def test_a_learner_explores_learns_relearns_and_learns_again() -> None:
     ],
 )
 def test_an_illegal_move_raises_and_leaves_the_phase(start: Phase, to: Phase) -> None:
-    phases = PhaseMachine(start, FLOWN.get(start, LEARNED))
+    phases = _machine(start)
     with pytest.raises(PhaseTransitionError, match=f"phase {start} cannot move to {to}"):
-        phases.move(to, FLOWN.get(to, LEARNED))
+        phases.move(to, *_args(to))
     assert phases.current is start
 
 
@@ -48,11 +87,11 @@ def test_an_illegal_move_raises_and_leaves_the_phase(start: Phase, to: Phase) ->
 )
 def test_a_phase_flies_only_gains_of_its_own_source(phase: Phase, source: str) -> None:
     with pytest.raises(PhaseTransitionError, match=f"phase {phase} cannot fly '{source}' gains"):
-        PhaseMachine(phase, Gains(K0.K, K0.L, source))
+        PhaseMachine(phase, Gains(K0.K, K0.L, source), _args(phase)[1])
 
 
 def test_a_trim_changes_the_feedforward_gain_alone() -> None:
-    phases = PhaseMachine(Phase.EXPLORING, K0)
+    phases = PhaseMachine(Phase.EXPLORING, K0, SCHEDULE)
     phases.move(Phase.LEARNED, LEARNED)
     phases.trim(np.full((1, 2), 0.5))
     assert phases.current is Phase.LEARNED and phases.gains.source == "ddvi"

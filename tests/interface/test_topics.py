@@ -112,7 +112,7 @@ def test_topics_published_by_a_service() -> None:
     )
     assert topics_published_by("launcher") == (stats_topic("launcher"), log_topic("launcher"))
     assert topics_published_by("ground-4242") == tuple(
-        fault_topic(k) for k in ("kill", "panel", "bias", "link")
+        fault_topic(k) for k in ("kill", "panel", "bias", "outage", "link")
     )
     assert topics_published_by("intruder") == ()
 
@@ -122,6 +122,7 @@ def test_topics_subscribed_by_a_service() -> None:
         CLOCK,
         truth_topic("*"),
         fault_topic("bias"),
+        fault_topic("outage"),
         fault_topic("link"),
     )
     assert topics_subscribed_by("ctrl-deputy1") == (
