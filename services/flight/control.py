@@ -1,7 +1,8 @@
 """The control law of a deputy's controller, with its learner: no bus, no processes.  The
 controller service (``services.flight.controller``) and the one-process baseline
-(``services.flight.inprocess``) both fly it.  Its phases and their moves:
-services.flight.phases; its learners: services.flight.learners; re-learning:
+(``services.flight.inprocess``) both fly it (through ``services.flight.control_loop``).  Its
+phases and their moves: services.flight.phases; when it learns and what follows:
+services.flight.learning_cycle; its learners: services.flight.learners; re-learning:
 services.flight.relearning.
 
 Modes: ``lqr`` flies u = -K x + L v with gains from the nominal linear model.  ``ddvi`` flies
@@ -30,7 +31,6 @@ about the orbit normal; sigma1 = sigma2 = 0.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,8 +40,9 @@ from ddvi_core.model_fit import IntegralHistory
 from services.config import Deployment
 from services.flight.actuation import Actuation
 from services.flight.learners import Learner, LearnerExostate, make_learner
+from services.flight.learning_cycle import LearningCycle, initial_gains
 from services.flight.phases import Gains, Phase, PhaseMachine, Schedule
-from services.flight.relearning import ChangeWatch, Relearning
+from services.flight.relearning import ChangeWatch
 from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
 
 
@@ -79,15 +80,19 @@ class Controller:
             self.learner = make_learner(dep, self.deputy, self.problem, q)
             # samples before data_from_orbits are not the learner's (the initial transient)
             schedule = Schedule(lrn.data_from_orbits * self.orbit, lrn.learn_at_orbits * self.orbit)
-            self.phases = PhaseMachine(Phase.EXPLORING, self.initial_gains(), schedule)
-        self.iteration = 0
-        self.learn_info: dict = {}
-        self.rank = self.rank_needed = 0
-        self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
-        self.learn_attempts = 0
+            gains = initial_gains(self.learner, self.exostate)
+            self.phases = PhaseMachine(Phase.EXPLORING, gains, schedule)
         self.watch = ChangeWatch(lrn, self.deputy.navigation.period, self.orbit)
-        self.learned_at: list[float] = []  # every switch to learned gains (s)
-        self.abandoned_at: list[float] = []  # every return to the old gains (s)
+        self.learning = LearningCycle(
+            self.deputy,
+            self.orbit,
+            self.fsw,
+            self.learner,
+            self.phases,
+            self.exostate,
+            self.watch,
+            self.actuation,
+        )
 
     @property
     def phase(self) -> str:
@@ -125,13 +130,6 @@ class Controller:
         schedule = self.phases.schedule
         return math.inf if schedule is None else schedule.collect_from
 
-    def initial_gains(self) -> Gains:
-        """K0 and no feedforward, what a learner explores on."""
-        assert self.learner is not None
-        return Gains(
-            self.learner.initial_gain(), np.zeros((1, self.exosystem[1].shape[0])), "initial"
-        )
-
     @property
     def u(self) -> float:
         """The attitude command in force, sigma3."""
@@ -160,21 +158,9 @@ class Controller:
         return self.exostate.density_mode
 
     def rejoin(self, t: float) -> str:
-        """Restarted into a running mission, flying from step t on: nothing of the previous
-        process survives, so a learner starts over (exploring with K0, its data from when its
-        own commands act, learning ``learn_at_orbits`` from now).  Returns the log line."""
-        if self.mode == "lqr":
-            return f"restarted: flying the LQR gains from t = {t:.0f} s"
-        delay = self.actuation.delay
-        self.phases.reschedule(
-            collect_from=math.ceil((t + delay) / self.fsw - 1e-9) * self.fsw,
-            next_attempt=t + self.deputy.learning.learn_at_orbits * self.orbit,
-        )
-        return (
-            f"restarted: learning starts over (the data and gains of the previous process are "
-            f"lost); exploring from t = {t:.0f} s, data from t = {self.collect_from:.0f} s, "
-            f"learning at t = {self.next_attempt:.0f} s"
-        )
+        """Restarted into a running mission, flying from step t on (``LearningCycle.rejoin``:
+        a learner starts over).  Returns the log line."""
+        return self.learning.rejoin(t)
 
     def command(self, t: float, x: np.ndarray, v: np.ndarray, altitude: float) -> float:
         """The attitude command sigma3 for a flight-software step at t, from state x (4,) and
@@ -206,47 +192,14 @@ class Controller:
         learn_log = None
         learned = self.phases.current is Phase.LEARNED
         if self.exploring and t >= self.next_attempt - 1e-6:
-            learn_log = self.learn(t)
+            learn_log = self.learning.learn(t)
         elif learned and self.watch.alarm:
-            learn_log = self.start_relearning(t)
+            learn_log = self.learning.start_relearning(t)
         elif learned and self.learner is not None and self.learner.station is not None:
-            L, learn_log = self.learner.station.step(t, self.L, self.learning_window(t))
+            L, learn_log = self.learner.station.step(t, self.L, self.learning.learning_window(t))
             self.phases.trim(L)
         self.command(t, x, v, altitude)
         return learn_log
-
-    def start_relearning(self, t: float) -> str:
-        """The detector has seen the plant change at step t: explore again on K0, the
-        drift-nulling gain the first learning explored on, with the data from
-        ``relearn_settle_orbits`` later on only, and learn again ``relearn_window_orbits`` after
-        that.  Not on the learned gains: mid-approach they hold the command at one attitude
-        limit or the other, which clips the exploration away (measured: data from the approach
-        gave |K - K*|/|K*| = 2.3, and holding the slot with the learned gains swings the
-        lightly damped loop through the limits for orbits).  Returns the log line."""
-        lrn, learner = self.deputy.learning, self.learner
-        seen = self.watch.detected()
-        learned = self.learned_at[-1] if self.learned_at else t
-        since = t + lrn.relearn_settle_orbits * self.orbit
-        window = lrn.relearn_window_orbits * self.orbit
-        before = Relearning(
-            self.K,
-            self.L,
-            self.exosystem,
-            learned,
-            learner.store,
-            (self.rank, self.rank_needed),
-            since,
-            window,
-        )
-        self.exostate.add_density_ratio()
-        # K0 until it re-learns
-        schedule = Schedule(since, since + window)
-        self.phases.move(Phase.RELEARNING, self.initial_gains(), schedule, before)
-        learner.store = learner.new_store(self.exosystem[1].shape[0])
-        return (
-            f"fault detector: at t = {t:.0f} s {seen}; exploring again on K0, re-learning at "
-            f"t = {self.next_attempt:.0f} s from the data from t = {since:.0f} s on"
-        )
 
     def collect(
         self, t: float, x: np.ndarray, v: np.ndarray, altitude: float, z: np.ndarray | None = None
@@ -275,70 +228,3 @@ class Controller:
         if rejected is None and lrn.relearn:
             self.watch.record(t, x, u, v)
         return rejected
-
-    def learning_failed(self, t: float, why: str) -> str:
-        """A learning attempt at t did not give gains (``why``): explore on and try again
-        ``retry_orbits`` later; but once re-learning has failed ``relearn_max_attempts``
-        times, stop exploring and fly the gains of before the detection again, with the
-        detector off (it would only see the same change again).  Exploring on K0 for ever
-        is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
-        fault's bias (measured: 18.5 km off at orbit 50 with a panel stuck at 60 deg, against
-        673 m with the old gains back after 5 attempts).  Returns the log line."""
-        lrn, before = self.deputy.learning, self.phases.before
-        if before is not None:
-            before.failures += 1
-            if before.failures >= lrn.relearn_max_attempts:
-                self.exostate.exosystem = before.exosystem
-                self.learner.store = before.store
-                self.rank, self.rank_needed = before.rank
-                self.watch.disarm()
-                self.phases.move(Phase.LEARNED, Gains(before.K, before.L, "fallback"))
-                self.abandoned_at.append(t)
-                return (
-                    f"{why}; re-learning abandoned after {before.failures} attempts: flying "
-                    f"the gains learned at t = {before.learned_at:.0f} s again, fault detector off"
-                )
-        retry = t + lrn.retry_orbits * self.orbit
-        until = lrn.learn_until_orbits * self.orbit
-        if lrn.learn_until_orbits > 0 and retry > until + 1e-6:
-            # far from where it started the linear model no longer holds the data (a deputy
-            # that cannot hold its slot drifts 100 km and more), so a late fit is not trusted
-            self.phases.reschedule(next_attempt=math.inf)
-            return f"{why}; no gain accepted by orbit {lrn.learn_until_orbits:g}: learning stops"
-        self.phases.reschedule(next_attempt=retry)
-        return f"{why}, exploring on"
-
-    def learning_window(self, t: float) -> float:
-        """The first sample time (s) an attempt at t learns from: while re-learning, the
-        newest window since settling; else the last ``window_orbits`` (0: all the data, a
-        window that grows with every retry)."""
-        if self.phases.before is not None:
-            return self.phases.before.window_start(t)
-        return self.learner.window_start(t)
-
-    def learn(self, t: float) -> str:
-        """Run the deployment's learner on the data so far; switch gains on success."""
-        lrn, learner = self.deputy.learning, self.learner
-        t0 = time.perf_counter()
-        self.learn_attempts += 1
-        since = self.learning_window(t)
-        attempt = learner.attempt(since, self.exosystem, self.next_attempt)
-        if attempt.rank is not None:
-            self.rank, self.rank_needed = attempt.rank
-        if attempt.refused is not None:
-            return self.learning_failed(t, f"learning at t = {t:.0f} s {attempt.refused}")
-        r, info = attempt.result, attempt.info
-        self.result = r
-        relearned = self.phases.before is not None
-        self.phases.move(Phase.LEARNED, Gains(r.K, r.L, learner.source))
-        self.iteration = info.get("iterations", 0)
-        self.learned_at.append(t)
-        self.learn_info = {"wall_s": time.perf_counter() - t0, **info}
-        armed = self.watch.arm(since, self.exosystem[1].shape[0]) if lrn.relearn else ""
-        learner.learned(t, r, self.exosystem)
-        return (
-            f"{'re-learned' if relearned else 'learned'} at t = {t:.0f} s from "
-            f"{info['intervals']} intervals {learner.describe(info)} "
-            f"({self.learn_info['wall_s']:.2f} s): "
-            f"K = {r.K.ravel().tolist()}, L = {r.L.ravel().tolist()}{armed}"
-        )

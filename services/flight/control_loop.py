@@ -129,7 +129,7 @@ class ControlLoop:
     run : the deployment's ``[run]`` (fsw_period, nav_stale_limit).
     delay : the nominal delay of the controller's input links, s.
     joining : restarted into a running mission: it flies from the first step it has a sample
-        for, and a learner starts over (``Controller.rejoin``).
+        for, and a learner starts over (``LearningCycle.rejoin``).
     """
 
     def __init__(self, ctrl: Controller, run: Any, delay: float, joining: bool = False) -> None:
@@ -228,9 +228,9 @@ class ControlLoop:
                 learn_log = ctrl.tick(T, newest.x, newest.v, newest.altitude)
             sigma = [0.0, 0.0, ctrl.u]
         if learn_log is not None:
-            counters["learn_attempts"] = ctrl.learn_attempts
+            counters["learn_attempts"] = ctrl.learning.learn_attempts
             counters["fault_detections"] = ctrl.detections
-            counters["relearning_abandoned"] = len(ctrl.abandoned_at)
+            counters["relearning_abandoned"] = len(ctrl.learning.abandoned_at)
         counters["commands"] += 1
         self.steps += 1
         self.out.append(Step(self.steps, T, sigma, safe, learn_log, ctrl.exploring))

@@ -14,7 +14,7 @@ that is the sample measured at T - d, and the step waits until that sample is ac
 While its navigation service is away (liveliness token gone for a grace, until the token is
 back) a step flies on the newest sample there is (``services.flight.step_gate``).  Restarted
 into a running mission (``--join``) it flies from the first step it has a sample for; a learner
-starts over (``Controller.rejoin``) and says so in its log.
+starts over (``LearningCycle.rejoin``) and says so in its log.
 Health (docs/health.md): in lock-step a step whose sample does not come is said after
 run.command_deadline and given up past run.hang_timeout (exit HANG_STATUS, naming nav-<deputy>);
 in either mode a step whose newest sample is older than run.nav_stale_limit flies the safe
@@ -114,7 +114,7 @@ class ControllerService:
                 "K": ctrl.K,
                 "L": ctrl.L,
                 "source": ctrl.source,
-                "iteration": ctrl.iteration,
+                "iteration": ctrl.learning.iteration,
                 "converged": ctrl.converged,
             },
             t,
@@ -132,8 +132,8 @@ class ControllerService:
                 "phase": ctrl.phase,
                 "samples": c.samples if c else 0,
                 "intervals": c.intervals if c else 0,
-                "rank": ctrl.rank,
-                "rank_needed": ctrl.rank_needed,
+                "rank": ctrl.learning.rank,
+                "rank_needed": ctrl.learning.rank_needed,
                 "counters": self.counters,
             },
             t,

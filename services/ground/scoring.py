@@ -238,7 +238,7 @@ def inprocess_outcome(dep: Deployment, deputy: Deputy, rec: dict[str, Any]) -> D
         along_track_error=np.abs(hill[:, 1] - deputy.y_ref),
         K=np.asarray(c.K),
         source=c.source,
-        learned_at=list(getattr(c, "learned_at", [])),
+        learned_at=list(c.learning.learned_at),
         log=list(rec.get("log", [])),
     )
 

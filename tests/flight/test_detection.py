@@ -129,7 +129,7 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
     period = orbit_period(dep)
     out = run_in_process(dep)
     for name in ("ddvi", "whole"):
-        assert out[name]["controller"].learned_at[0] == pytest.approx(15 * period, abs=60)
+        assert out[name]["controller"].learning.learned_at[0] == pytest.approx(15 * period, abs=60)
         assert "fault detector: bound = +-" in out[name]["log"][0]
     faulted, intact = out["ddvi"]["controller"], out["whole"]["controller"]
     assert intact.detections == 0 and intact.phase == "learned"
@@ -139,10 +139,10 @@ def test_panel_fault_is_detected_and_relearned_from_the_deputys_own_data() -> No
     detected = float(out["ddvi"]["log"][1].split("at t = ")[1].split(" s")[0])
     assert 21 * period < detected < 22 * period
     # re-learned 2 + 10 orbits after the detection, and flying it with the detector re-armed
-    assert faulted.phase == "learned" and len(faulted.learned_at) == 2
+    assert faulted.phase == "learned" and len(faulted.learning.learned_at) == 2
     lrn = dep.deputy[1].learning
     wait = (lrn.relearn_settle_orbits + lrn.relearn_window_orbits) * period
-    assert faulted.learned_at[1] == pytest.approx(detected + wait, abs=dep.run.fsw_period)
+    assert faulted.learning.learned_at[1] == pytest.approx(detected + wait, abs=dep.run.fsw_period)
     assert out["ddvi"]["log"][-1].startswith("re-learned at") and faulted.watch.detector is not None
     pr = nominal_problem(dep, dep.deputy[1])
     K_faulted = solve_lqr(pr.A, 0.8 * pr.B, pr.Q, pr.R).K
@@ -169,9 +169,9 @@ def test_stuck_panel_is_detected_and_the_learner_switches_to_new_gains() -> None
     assert ddvi.detections == 1 and "left the bound" in log[1]
     detected = float(log[1].split("at t = ")[1].split(" s")[0])
     assert 21 * period < detected < 24 * period
-    assert ddvi.phase == "learned" and len(ddvi.learned_at) == 2
+    assert ddvi.phase == "learned" and len(ddvi.learning.learned_at) == 2
     assert log[-1].startswith("re-learned at") and ddvi.source == "ddvi"
-    assert ddvi.learned_at[1] > detected + 12 * period - dep.run.fsw_period
+    assert ddvi.learning.learned_at[1] > detected + 12 * period - dep.run.fsw_period
     assert ddvi.L.shape == (1, 6) and ddvi.watch.detector is not None  # re-armed
 
 
@@ -191,24 +191,24 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
     ctrl = Controller(dep, "ddvi")
     K, L = np.array([[-0.02, 4e-4, -0.9, -9.0]]), np.full((1, 5), 1e-3)
     ctrl.phases.move(Phase.LEARNED, Gains(K, L, "ddvi"))
-    ctrl.learned_at = [1000.0]
+    ctrl.learning.learned_at = [1000.0]
     alarm = SimpleNamespace(mean=np.array([0.1]), bound=np.array([0.05]), statistic=2.0)
     ctrl.watch.detector = alarm
     t = 2000.0
     collector = ctrl.collector
-    assert "the plant has changed" in ctrl.start_relearning(t)
+    assert "the plant has changed" in ctrl.learning.start_relearning(t)
     assert ctrl.collector is not collector  # re-learning collects afresh
     assert ctrl.phase == "relearning" and ctrl.L.shape == (1, 6) and ctrl.source == "initial"
     period = orbit_period(dep)
     for attempt in (1, 2, 3):  # no data collected: every attempt fails
         t = ctrl.next_attempt
-        log = ctrl.learn(t)
+        log = ctrl.learning.learn(t)
         if attempt < 3:
             assert log.endswith("exploring on") and ctrl.phase == "relearning"
             assert ctrl.next_attempt == pytest.approx(t + period)
     assert "re-learning abandoned after 3 attempts" in log and "learned at t = 1000 s" in log
     assert ctrl.phase == "learned" and ctrl.source == "fallback" and not ctrl.exploring
     assert ctrl.K is K and ctrl.L is L and not ctrl.density_mode and ctrl.watch.detector is None
-    assert ctrl.abandoned_at == [t] and ctrl.collector is collector
+    assert ctrl.learning.abandoned_at == [t] and ctrl.collector is collector
     u = ctrl.command(t, np.zeros(4), np.ones(5), dep.chief.a - R_EARTH)
     assert np.isfinite(u)  # flies: the exostate is the 5-element one L was learned on

@@ -49,7 +49,7 @@ def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
     ctrl = out["fit"]["controller"]
     period = orbit_period(dep)
     assert ctrl.phase == "learned" and ctrl.source == "model-fit"
-    assert 6.0 <= ctrl.learned_at[0] / period <= 6.1
+    assert 6.0 <= ctrl.learning.learned_at[0] / period <= 6.1
     assert _gain_error(dep, ctrl) <= 0.02
     assert ctrl.L.shape == (1, 6)  # the density ratio is in the learner's exostate
     assert "model fit (condition" in out["fit"]["log"][-1]
@@ -59,13 +59,13 @@ def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
         "K": ctrl.K,
         "L": ctrl.L,
         "source": ctrl.source,
-        "iteration": ctrl.iteration,
+        "iteration": ctrl.learning.iteration,
         "converged": ctrl.converged,
     }
     assert decode(encode("gains", body, seq=0, t=1.0, src="ctrl-fit")).body["source"] == "model-fit"
     # no divergence: after learning the deputy closes on its slot (33 km behind at orbit 6)
     t, y = out["fit"]["t"], out["fit"]["x"][:, 1]
-    assert np.all(np.isfinite(y)) and abs(y[-1]) < abs(y[t >= ctrl.learned_at[0]][0])
+    assert np.all(np.isfinite(y)) and abs(y[-1]) < abs(y[t >= ctrl.learning.learned_at[0]][0])
 
 
 @pytest.mark.integration  # a 7-orbit mission
@@ -73,8 +73,8 @@ def test_an_uncertain_fit_retries_on_a_growing_window():
     dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6)
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
-    assert ctrl.phase == "exploring" and ctrl.learn_attempts == 2  # at orbits 6 and 6.5
-    assert not ctrl.learned_at
+    assert ctrl.phase == "exploring" and ctrl.learning.learn_attempts == 2  # at orbits 6 and 6.5
+    assert not ctrl.learning.learned_at
     assert "predicted relative error" in out["fit"]["log"][0]
 
 
@@ -82,8 +82,9 @@ def test_an_uncertain_fit_retries_on_a_growing_window():
 def test_the_deadline_tolerance_applies_from_its_orbit():
     dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6, fit_deadline_orbits=6.5)
     ctrl = run_in_process(dep)["fit"]["controller"]
-    assert ctrl.learn_attempts == 2 and ctrl.phase == "learned"  # refused at 6, taken at 6.5
-    assert ctrl.learned_at[0] / orbit_period(dep) == pytest.approx(6.5, abs=0.05)
+    # refused at 6, taken at 6.5
+    assert ctrl.learning.learn_attempts == 2 and ctrl.phase == "learned"
+    assert ctrl.learning.learned_at[0] / orbit_period(dep) == pytest.approx(6.5, abs=0.05)
     assert _gain_error(dep, ctrl) <= 0.02
 
 
@@ -175,14 +176,14 @@ def _learned(dep, name="fit"):
     ctrl = Controller(dep, name)
     p = true_problem(dep, ctrl.deputy)
     ctrl.phases.move(Phase.LEARNED, Gains(ctrl.K, ctrl.L, ctrl.learner.source))
-    ctrl.result = SimpleNamespace(model=SimpleNamespace(A=p.A, B=p.B))
+    ctrl.learning.result = SimpleNamespace(model=SimpleNamespace(A=p.A, B=p.B))
     store = ctrl.learner.new_store(ctrl.exosystem[1].shape[0])
     ctrl.learner.station = StationKeeping(
         ctrl.deputy.learning,
         orbit_period(dep),
         0.0,
         ctrl.K,
-        ctrl.result.model,
+        ctrl.learning.result.model,
         ctrl.exosystem,
         store,
     )
@@ -191,7 +192,7 @@ def _learned(dep, name="fit"):
 
 def _refit(ctrl, t: float) -> str:
     """Refit the learned controller's feedforward at t (s), as its step does when due."""
-    L, log = ctrl.learner.station.refit(t, ctrl.L, ctrl.learning_window(t))
+    L, log = ctrl.learner.station.refit(t, ctrl.L, ctrl.learning.learning_window(t))
     ctrl.phases.trim(L)
     return log
 
@@ -253,7 +254,8 @@ def test_a_gain_that_fails_its_validation_is_not_flown():
     dep = _faulted_before_learning(6.5)
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
-    assert ctrl.phase == "exploring" and not ctrl.learned_at and ctrl.learn_attempts == 1
+    assert ctrl.phase == "exploring" and not ctrl.learning.learned_at
+    assert ctrl.learning.learn_attempts == 1
     assert np.array_equal(ctrl.K, ctrl.learner.initial_gain())
     assert "failed validation" in out["fit"]["log"][0]
     assert "does not stabilise the model fitted without the newest" in out["fit"]["log"][0]
@@ -302,7 +304,8 @@ def test_learning_stops_at_learn_until_orbits_with_no_gain_accepted():
     dep = _fit_only("rendezvous", 7.5, fit_tolerance=1e-6, learn_until_orbits=6.6)
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
-    assert ctrl.learn_attempts == 2 and not ctrl.learned_at  # at orbits 6.01 and 6.51, not 7.01
+    # at orbits 6.01 and 6.51, not 7.01
+    assert ctrl.learning.learn_attempts == 2 and not ctrl.learning.learned_at
     assert ctrl.next_attempt == float("inf")
     assert out["fit"]["log"][-1].endswith("no gain accepted by orbit 6.6: learning stops")
 

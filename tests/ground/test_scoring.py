@@ -109,7 +109,8 @@ def _fake_in_process(flights: dict, monkeypatch: pytest.MonkeyPatch):
             last = f["gains"][-1]
             switches = [g.t for g in f["gains"] if g.source == "ddvi"]
             x = f["hill"]
-            ctrl = SimpleNamespace(K=np.asarray(last.K), source=last.source, learned_at=switches)
+            learning = SimpleNamespace(learned_at=switches)
+            ctrl = SimpleNamespace(K=np.asarray(last.K), source=last.source, learning=learning)
             out[d.name] = {
                 "t": f["t"],
                 "x": x,

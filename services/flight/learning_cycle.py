@@ -1,0 +1,179 @@
+"""A learning deputy's learning cycle: when it learns, what it does with an attempt's outcome,
+when it re-learns after a detected change and when it gives re-learning up, and the record of
+it all (attempts, switches, ranks, the last result).  No I/O: the controller
+(``services.flight.control.Controller``) calls it from its steps and flies the gains its phase
+holds (``services.flight.phases``)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from services.config import Deputy
+from services.flight.actuation import Actuation
+from services.flight.learners import Learner, LearnerExostate
+from services.flight.phases import Gains, Phase, PhaseMachine, Schedule
+from services.flight.relearning import ChangeWatch, Relearning
+
+
+def initial_gains(learner: Learner, exostate: LearnerExostate) -> Gains:
+    """K0 and no feedforward, what a learner explores on."""
+    q = exostate.exosystem[1].shape[0]
+    return Gains(learner.initial_gain(), np.zeros((1, q)), "initial")
+
+
+class LearningCycle:
+    """When the deputy's learner learns and what follows, and its record.
+
+    Parameters
+    ----------
+    deputy : the deputy (its ``learning`` table).
+    orbit, fsw : the orbit and the flight-software step, s.
+    learner : the deputy's learner (None for the LQR: the record stays empty).
+    phases : the controller's phases, moved by the cycle.
+    exostate : the learner's exostate (the density ratio added on re-learning).
+    watch : the change detector's watch.
+    actuation : the commands (their link delay: when a restarted learner's data start).
+    """
+
+    def __init__(
+        self,
+        deputy: Deputy,
+        orbit: float,
+        fsw: float,
+        learner: Learner | None,
+        phases: PhaseMachine,
+        exostate: LearnerExostate,
+        watch: ChangeWatch,
+        actuation: Actuation,
+    ) -> None:
+        self.deputy, self.orbit, self.fsw = deputy, orbit, fsw
+        self.learner, self.phases, self.exostate = learner, phases, exostate
+        self.watch, self.actuation = watch, actuation
+        self.iteration = 0
+        self.learn_info: dict = {}
+        self.rank = self.rank_needed = 0
+        self.result = None  # the learner's last result (DDVIResult): P, X, U as well as K, L
+        self.learn_attempts = 0
+        self.learned_at: list[float] = []  # every switch to learned gains (s)
+        self.abandoned_at: list[float] = []  # every return to the old gains (s)
+
+    def rejoin(self, t: float) -> str:
+        """Restarted into a running mission, flying from step t on: nothing of the previous
+        process survives, so a learner starts over (exploring with K0, its data from when its
+        own commands act, learning ``learn_at_orbits`` from now).  Returns the log line."""
+        if self.learner is None:
+            return f"restarted: flying the LQR gains from t = {t:.0f} s"
+        delay = self.actuation.delay
+        self.phases.reschedule(
+            collect_from=math.ceil((t + delay) / self.fsw - 1e-9) * self.fsw,
+            next_attempt=t + self.deputy.learning.learn_at_orbits * self.orbit,
+        )
+        schedule = self.phases.schedule
+        return (
+            f"restarted: learning starts over (the data and gains of the previous process are "
+            f"lost); exploring from t = {t:.0f} s, data from t = {schedule.collect_from:.0f} s, "
+            f"learning at t = {schedule.next_attempt:.0f} s"
+        )
+
+    def start_relearning(self, t: float) -> str:
+        """The detector has seen the plant change at step t: explore again on K0, the
+        drift-nulling gain the first learning explored on, with the data from
+        ``relearn_settle_orbits`` later on only, and learn again ``relearn_window_orbits`` after
+        that.  Not on the learned gains: mid-approach they hold the command at one attitude
+        limit or the other, which clips the exploration away (measured: data from the approach
+        gave |K - K*|/|K*| = 2.3, and holding the slot with the learned gains swings the
+        lightly damped loop through the limits for orbits).  Returns the log line."""
+        lrn, learner = self.deputy.learning, self.learner
+        seen = self.watch.detected()
+        learned = self.learned_at[-1] if self.learned_at else t
+        since = t + lrn.relearn_settle_orbits * self.orbit
+        window = lrn.relearn_window_orbits * self.orbit
+        before = Relearning(
+            self.phases.gains.K,
+            self.phases.gains.L,
+            self.exostate.exosystem,
+            learned,
+            learner.store,
+            (self.rank, self.rank_needed),
+            since,
+            window,
+        )
+        self.exostate.add_density_ratio()
+        # K0 until it re-learns
+        schedule = Schedule(since, since + window)
+        self.phases.move(Phase.RELEARNING, initial_gains(learner, self.exostate), schedule, before)
+        learner.store = learner.new_store(self.exostate.exosystem[1].shape[0])
+        return (
+            f"fault detector: at t = {t:.0f} s {seen}; exploring again on K0, re-learning at "
+            f"t = {self.phases.schedule.next_attempt:.0f} s from the data from t = {since:.0f} s on"
+        )
+
+    def learning_window(self, t: float) -> float:
+        """The first sample time (s) an attempt at t learns from: while re-learning, the
+        newest window since settling; else the last ``window_orbits`` (0: all the data, a
+        window that grows with every retry)."""
+        if self.phases.before is not None:
+            return self.phases.before.window_start(t)
+        return self.learner.window_start(t)
+
+    def learn(self, t: float) -> str:
+        """Run the deployment's learner on the data so far; switch gains on success."""
+        lrn, learner = self.deputy.learning, self.learner
+        t0 = time.perf_counter()
+        self.learn_attempts += 1
+        since = self.learning_window(t)
+        attempt = learner.attempt(since, self.exostate.exosystem, self.phases.schedule.next_attempt)
+        if attempt.rank is not None:
+            self.rank, self.rank_needed = attempt.rank
+        if attempt.refused is not None:
+            return self.learning_failed(t, f"learning at t = {t:.0f} s {attempt.refused}")
+        r, info = attempt.result, attempt.info
+        self.result = r
+        relearned = self.phases.before is not None
+        self.phases.move(Phase.LEARNED, Gains(r.K, r.L, learner.source))
+        self.iteration = info.get("iterations", 0)
+        self.learned_at.append(t)
+        self.learn_info = {"wall_s": time.perf_counter() - t0, **info}
+        armed = self.watch.arm(since, self.exostate.exosystem[1].shape[0]) if lrn.relearn else ""
+        learner.learned(t, r, self.exostate.exosystem)
+        return (
+            f"{'re-learned' if relearned else 'learned'} at t = {t:.0f} s from "
+            f"{info['intervals']} intervals {learner.describe(info)} "
+            f"({self.learn_info['wall_s']:.2f} s): "
+            f"K = {r.K.ravel().tolist()}, L = {r.L.ravel().tolist()}{armed}"
+        )
+
+    def learning_failed(self, t: float, why: str) -> str:
+        """A learning attempt at t did not give gains (``why``): explore on and try again
+        ``retry_orbits`` later; but once re-learning has failed ``relearn_max_attempts``
+        times, stop exploring and fly the gains of before the detection again, with the
+        detector off (it would only see the same change again).  Exploring on K0 for ever
+        is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
+        fault's bias (measured: 18.5 km off at orbit 50 with a panel stuck at 60 deg, against
+        673 m with the old gains back after 5 attempts).  Returns the log line."""
+        lrn, before = self.deputy.learning, self.phases.before
+        if before is not None:
+            before.failures += 1
+            if before.failures >= lrn.relearn_max_attempts:
+                self.exostate.exosystem = before.exosystem
+                self.learner.store = before.store
+                self.rank, self.rank_needed = before.rank
+                self.watch.disarm()
+                self.phases.move(Phase.LEARNED, Gains(before.K, before.L, "fallback"))
+                self.abandoned_at.append(t)
+                return (
+                    f"{why}; re-learning abandoned after {before.failures} attempts: flying "
+                    f"the gains learned at t = {before.learned_at:.0f} s again, fault detector off"
+                )
+        retry = t + lrn.retry_orbits * self.orbit
+        until = lrn.learn_until_orbits * self.orbit
+        if lrn.learn_until_orbits > 0 and retry > until + 1e-6:
+            # far from where it started the linear model no longer holds the data (a deputy
+            # that cannot hold its slot drifts 100 km and more), so a late fit is not trusted
+            self.phases.reschedule(next_attempt=math.inf)
+            return f"{why}; no gain accepted by orbit {lrn.learn_until_orbits:g}: learning stops"
+        self.phases.reschedule(next_attempt=retry)
+        return f"{why}, exploring on"
