@@ -17,23 +17,21 @@ Counters and sequence numbers are guarded by locks; nothing raised in a callback
 from __future__ import annotations
 
 import queue
-import secrets
-import threading
-from collections.abc import Collection, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Collection, Iterable, Mapping
+from contextlib import AbstractContextManager
 from typing import Any
 
 import zenoh
 
 from services.bus.budget import Dropped, RateBudget
 from services.bus.links import CLOCKS, LinkModel
+from services.bus.publication import Publication
 from services.bus.reception import Handler, Reception, Route
 from services.bus.session import check_name, key_prefix
-from services.interface import MAX_BATCH, MAX_PAYLOAD, Message, encode, pack_batch
+from services.interface import Message
 from services.interface.links import LinkRule, rule_latency
 from services.interface.topics import alive_topic
 
-MSGPACK_ENCODING = "application/msgpack"
 _LINK_COUNTERS = ("dropped", "duplicated", "reordered", "delayed")
 
 
@@ -49,19 +47,6 @@ def queue_handler(q: queue.SimpleQueue[Any] | queue.Queue[Any]) -> Handler:
         q.put_nowait((topic, message))
 
     return handler
-
-
-def _check_topic(topic: str) -> str:
-    if (
-        not isinstance(topic, str)
-        or not topic
-        or any(c in topic for c in "*$?#")
-        or "//" in topic
-        or topic[0] == "/"
-        or topic[-1] == "/"
-    ):
-        raise ValueError(f"topic: expected a/b/c without wildcards, got {topic!r}")
-    return topic
 
 
 class Bus:
@@ -96,18 +81,9 @@ class Bus:
         self.run = check_name("run", run)
         self.service = check_name("service", service)
         self.prefix = key_prefix(run)
-        self._pub_lock = threading.RLock()  # seq counters and publishers
-        self._publishers: dict[str, zenoh.Publisher] = {}
-        self._seq: dict[str, int] = {}  # topic -> next seq (its keys: topics checked once)
-        # drawn anew each time a bus opens: a receiver tells a restarted publisher, counting
-        # from 0 again, by its new boot, not by how its sequence numbers look
-        self.boot = secrets.randbits(63)
-        self._batching = 0  # depth of open ``batch()`` blocks
-        self._held: dict[str, list[bytes]] = {}  # topic -> payloads of the open batch
-        self._sent = 0  # under _pub_lock: publishing takes one lock a message
+        self._out = Publication(session, self.prefix, self.service)
         self._routes: list[Route] = []
         self._token: zenoh.LivelinessToken | None = None
-        self._closed = False
         self._rx = Reception(
             self.service, self.prefix, links, link_clock, seed, time_window, budget
         )
@@ -126,8 +102,7 @@ class Bus:
         for a ``stats`` message."""
         with self._rx.count_lock:
             out = dict(self._rx.counts)
-        with self._pub_lock:
-            out["sent"] = self._sent
+        out["sent"] = self._out.sent
         out.update(dict.fromkeys(_LINK_COUNTERS, 0))
         if self.budget is not None:
             flood = self.budget.counters()
@@ -162,64 +137,20 @@ class Bus:
 
     # -- publishing -------------------------------------------------------------------------
 
+    @property
+    def boot(self) -> int:
+        """This bus's boot number (``Publication.boot``)."""
+        return self._out.boot
+
     def publish(self, topic: str, schema: str, body: Mapping[str, Any], t: float) -> int:
-        """Encode and put ``body`` on ``ddvi/<run>/<topic>``; return the seq used.
+        """Encode and put ``body`` on ``ddvi/<run>/<topic>`` (``Publication.publish``); return
+        the seq used."""
+        return self._out.publish(topic, schema, body, t)
 
-        ``seq`` counts per topic from 0. Raises MessageError if the body does not fit its
-        schema (nothing is sent and the seq is not consumed).
-        """
-        if topic not in self._seq:
-            _check_topic(topic)
-        with self._pub_lock:
-            if self._closed:
-                raise RuntimeError(f"bus of {self.service} is closed")
-            seq = self._seq.get(topic, 0)
-            payload = encode(schema, body, seq=seq, t=t, src=self.service, boot=self.boot)
-            self._seq[topic] = seq + 1
-            if self._batching:
-                held = self._held.setdefault(topic, [])
-                size = sum(map(len, held)) + len(payload)
-                if held and (len(held) >= MAX_BATCH or size > MAX_PAYLOAD // 2):  # packs in one
-                    self._put(topic, held)
-                    held.clear()
-                held.append(payload)
-            else:
-                self._put(topic, [payload])
-            self._sent += 1
-        return seq
-
-    @contextmanager
-    def batch(self) -> Iterator[None]:
+    def batch(self) -> AbstractContextManager[None]:
         """Hold what is published inside the block and put it out at its end as one zenoh
-        sample per topic (``services.interface.schema.pack_batch``; a lone message goes out as
-        itself).
-        A lock-step publisher wraps one step's messages in it: receivers still see each
-        message, with its own seq and time, but the bus carries a sample per topic and step.
-        Blocks nest; the outermost one sends."""
-        with self._pub_lock:
-            self._batching += 1
-        try:
-            yield
-        finally:
-            with self._pub_lock:
-                self._batching -= 1
-                if not self._batching and not self._closed:
-                    held, self._held = self._held, {}
-                    for topic, payloads in held.items():
-                        if payloads:
-                            self._put(topic, payloads)
-
-    def _put(self, topic: str, payloads: list[bytes]) -> None:
-        """Put one message, or several as a batch, on ``topic`` (caller holds _pub_lock)."""
-        publisher = self._publishers.get(topic)
-        if publisher is None:
-            publisher = self.session.declare_publisher(
-                self.prefix + topic,
-                encoding=zenoh.Encoding(MSGPACK_ENCODING),
-                congestion_control=zenoh.CongestionControl.BLOCK,
-            )
-            self._publishers[topic] = publisher
-        publisher.put(payloads[0] if len(payloads) == 1 else pack_batch(payloads))
+        sample per topic (``Publication.batch``)."""
+        return self._out.batch()
 
     # -- subscribing ------------------------------------------------------------------------
 
@@ -251,7 +182,7 @@ class Bus:
         the bus's rate budget dropped messages on ``topic`` unread: what a lock-step loop
         waits for may be among them.
         """
-        if self._closed:
+        if self._out.closed:
             raise RuntimeError(f"bus of {self.service} is closed")
         route = Route(
             self._rx, handler, expected_schema, link, observe, pattern=topic_pattern, lost=lost
@@ -273,7 +204,7 @@ class Bus:
             self._rx.sim_time = float(sim_time)
             if self.budget is not None:
                 self.budget.advance(self._rx.sim_time)
-        if self._closed:
+        if self._out.closed:
             return 0
         return sum(route.release() for route in list(self._routes))
 
@@ -295,24 +226,23 @@ class Bus:
         publishers (their keys) stay declared for what it has put and zenoh has not yet sent.
         zenoh sends declarations ahead of queued data, so a key undeclared right after a put
         can reach the router first, which then drops the put it can no longer resolve."""
-        with self._pub_lock:
+        with self._out.lock:
             token, self._token = self._token, None
         if token is not None:
             token.undeclare()
 
     def close(self) -> None:
         """Undeclare subscribers, publishers and the liveliness token (idempotent)."""
-        with self._pub_lock:
-            if self._closed:
+        with self._out.lock:
+            publishers = self._out.close()
+            if publishers is None:
                 return
-            self._closed = True
-            publishers, token = self._publishers, self._token
-            self._publishers, self._token = {}, None
+            token, self._token = self._token, None
         # Undeclare outside the lock: a callback in flight may be publishing. Routes stay, so
         # their link counters remain readable after close.
         for route in self._routes:
             route.subscriber.undeclare()
-        for publisher in publishers.values():
+        for publisher in publishers:
             publisher.undeclare()
         if token is not None:
             token.undeclare()

@@ -88,9 +88,9 @@ class SequenceGuard:
                 return "jump"
             highest = self.highest = seq - 1  # the publisher is there: the window follows
             self._seen = 0
-        elif seq <= highest - self.window:
+        self._beyond = None  # any number within reach, a stale one too, ends a run of jumps
+        if seq <= highest - self.window:
             return "stale"
-        self._beyond = None
         if seq > highest:
             ahead = seq - highest
             self._seen = ((self._seen << ahead) | 1) & self._mask if ahead < self.window else 1

@@ -540,7 +540,7 @@ def test_replays_and_link_duplicates_are_refused_once_counted(
             svc.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
         assert inbox.get(timeout=TIMEOUT)[1].seq == 0
         assert wait_until(lambda: rx.counters["rejected.duplicate"] == 1)
-        tx._seq["nav/deputy1/state"] = 1
+        tx._out.seq["nav/deputy1/state"] = 1  # the raw put above took seq 0
         for seq in range(1, 300):
             tx.publish("nav/deputy1/state", "nav", nav_body(3.0), t=10.0 + seq)
         assert [inbox.get(timeout=TIMEOUT)[1].seq for _ in range(299)] == list(range(1, 300))

@@ -65,7 +65,7 @@ TOPOLOGY_OF_SHORT = {
     **{f"cmd/{d}/att": "cmd" for d in ("lqr", "ddvi")},
     **{f"ctrl/{d}/gains": "gains" for d in ("lqr", "ddvi")},
     **{f"ctrl/{d}/status": "status" for d in ("lqr", "ddvi")},
-    **{f"fault/{k}": "fault" for k in ("kill", "panel", "bias", "link")},
+    **{f"fault/{k}": "fault" for k in ("kill", "panel", "bias", "outage", "link")},
     **{f"stats/{s}": "stats" for s in SERVICES},
     **{f"log/{s}": "log" for s in SERVICES},
     "recorded": "recorded",
