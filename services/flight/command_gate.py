@@ -21,13 +21,11 @@ from collections.abc import Callable
 
 from services.flight.environment_model import CommandsInForce
 from services.flight.health import HANG_MARGIN, HangError, Waiting
+from services.flight.inputs import LOST, OBSERVED, PRESENCE
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext
 from services.interface import Message, command_topic, fault_topic
 
-OBSERVED = "observed"  # inbox tag of a command seen by the link layer
-PRESENCE = "presence"  # inbox tag of a controller's liveliness change
-LOST = "lost"  # inbox tag: the bus's rate budget dropped commands unread (a flood)
 RECORDED_TAG = "recorded"  # inbox tag: the monitor's acknowledgement of what it recorded
 RECORDER_PRESENCE = "recorder presence"  # inbox tag: the monitor's liveliness change
 PANEL = fault_topic("panel")  # topic of run-time panel faults
@@ -129,9 +127,9 @@ class CommandGate:
             elif kind == RECORDED_TAG:
                 self.recorder.acknowledged(msg.t)
             elif kind == RECORDER_PRESENCE:
-                self.recorder.presence(msg)
+                self.recorder.presence(msg[1])
             elif kind == PRESENCE:
-                self.on_presence(*msg, t_k)
+                self.on_presence(msg[0].removeprefix("ctrl-"), msg[1], t_k)
             elif kind == LOST:
                 self.on_lost(msg, expected)
             else:

@@ -35,7 +35,10 @@ from services.interface import EXOSTATE, nav_state_topic
 
 def newest_sample_time(T: float, delay: float, period: float) -> float:
     """The measurement time (s) of the newest sample a step at T can have, its inputs
-    ``delay`` s behind on a grid of ``period`` s (negative: none yet)."""
+    ``delay`` s behind on a grid of ``period`` s (negative: none yet; inf for a step at inf,
+    a restarted controller's before it has a sample)."""
+    if math.isinf(T):
+        return T
     return math.floor((T - delay) / period + 1e-9) * period
 
 

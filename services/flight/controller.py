@@ -28,17 +28,16 @@ import queue
 import sys
 from typing import Any
 
-from services.bus import queue_handler, watch_alive
 from services.flight.control import Controller
 from services.flight.control_loop import ControlLoop, Said, Step, input_delay
 from services.flight.health import HangError
+from services.flight.inputs import LOST, OBSERVED, PRESENCE, Inputs
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.step_gate import StepGate
 from services.flight.streams import FinalClock
 from services.interface import (
     CLOCK,
     EXOSTATE,
-    Message,
     command_topic,
     gains_topic,
     nav_state_topic,
@@ -46,37 +45,20 @@ from services.interface import (
 )
 from services.model import IN_PLANE
 
-_SEEN = "seen"  # inbox tag: a nav or exo message accounted for by its link (see Bus.subscribe)
-_PRESENCE = "presence"  # inbox tag: the navigation service came or went
-_LOST = "lost"  # inbox tag: the bus's rate budget dropped nav or exo messages unread (a flood)
-
 
 def main(ctx: ServiceContext) -> int:
     sc = ctx.name.removeprefix("ctrl-")
     ctrl = Controller(ctx.deployment, sc)
-    inbox: queue.SimpleQueue = queue.SimpleQueue()
-
-    def seen(_topic: str, msg: Message) -> None:
-        inbox.put((_SEEN, msg))
-
-    def lost(topic: str) -> None:
-        inbox.put((_LOST, topic))
-
-    ctx.bus.subscribe(
-        nav_state_topic(sc), queue_handler(inbox), expected_schema="nav", observe=seen, lost=lost
-    )
-    ctx.bus.subscribe(
-        EXOSTATE, queue_handler(inbox), expected_schema="exo", observe=seen, lost=lost
-    )
-    ctx.bus.subscribe(CLOCK, queue_handler(inbox), expected_schema="clock")
-    presence = watch_alive(
-        ctx.bus.session, ctx.run, f"nav-{sc}", lambda _name, up: inbox.put((_PRESENCE, up))
-    )
+    inputs = Inputs(ctx)
+    inputs.listen(nav_state_topic(sc), "nav", accounted=True)
+    inputs.listen(EXOSTATE, "exo", accounted=True)
+    inputs.listen(CLOCK, "clock")
+    inputs.watch(f"nav-{sc}")
     try:
         ctx.ready()
-        return ControllerService(ctx, ctrl, inbox).run()
+        return ControllerService(ctx, ctrl, inputs.inbox).run()
     finally:
-        presence.undeclare()
+        inputs.close()
 
 
 class ControllerService:
@@ -179,13 +161,13 @@ class ControllerService:
         self.gate.check(T, lambda said: self.ctx.log("warning", said, T))
 
     def take(self, kind: str, msg: Any) -> None:
-        """One inbox entry: navigation's presence (``msg``: up or not), or a message: a sample
-        accounted for by its link, a clock, a sample."""
-        if kind == _PRESENCE:
-            self.gate.presence(bool(msg))
-        elif kind == _SEEN:
+        """One inbox entry (``services.flight.inputs``): navigation's presence, a sample
+        accounted for by its link, a flood's drops, or a message: a clock, a sample."""
+        if kind == PRESENCE:
+            self.gate.presence(bool(msg[1]))
+        elif kind == OBSERVED:
             self.gate.accounted("nav" if msg.schema == "nav" else "exo", msg.t)
-        elif kind == _LOST:  # flooded past its budget: the pending step's sample may be lost
+        elif kind == LOST:  # flooded past its budget: the pending step's sample may be lost
             self.gate.flooded("exo" if msg == EXOSTATE else "nav", self.loop.next_tick)
         elif msg.schema == "clock":
             self.gate.clock(msg.t)

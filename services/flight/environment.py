@@ -27,19 +27,12 @@ import time
 
 import numpy as np
 
-from services.bus import queue_handler, wait_for_alive, watch_alive
+from services.bus import wait_for_alive
 from services.config import Fault, check_fault
-from services.flight.command_gate import (
-    LOST,
-    OBSERVED,
-    PANEL,
-    PRESENCE,
-    RECORDED_TAG,
-    RECORDER_PRESENCE,
-    CommandGate,
-)
+from services.flight.command_gate import PANEL, RECORDED_TAG, RECORDER_PRESENCE, CommandGate
 from services.flight.environment_model import EnvironmentModel
 from services.flight.health import HangError
+from services.flight.inputs import PRESENCE, Inputs
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext, run_service
 from services.interface import CLOCK, EXOSTATE, RECORDED, Message, command_topic, truth_topic
@@ -55,23 +48,23 @@ def main(ctx: ServiceContext) -> int:
 
 
 def _serve(ctx: ServiceContext, truth: Truth) -> int:
-    dep = ctx.deployment
-    run = dep.run
-    deputies = [d.name for d in dep.deputy]
-    inbox: queue.SimpleQueue = queue.SimpleQueue()
+    inputs = Inputs(ctx)
     # every command that reaches this service is also observed after its link has delivered,
     # held or dropped it: the lock-step wait ends when the command it waits for is accounted for
-    ctx.bus.subscribe(
-        command_topic("*"),  # every deputy's
-        queue_handler(inbox),
-        expected_schema="cmd",
-        observe=lambda _topic, msg: inbox.put((OBSERVED, msg)),
-        lost=lambda topic: inbox.put((LOST, topic)),
-    )
-    ctx.bus.subscribe(PANEL, queue_handler(inbox), expected_schema="fault")
-    ctx.bus.subscribe(
-        RECORDED, lambda _topic, msg: inbox.put((RECORDED_TAG, msg)), expected_schema="recorded"
-    )
+    inputs.listen(command_topic("*"), "cmd", accounted=True)  # every deputy's
+    inputs.listen(PANEL, "fault")
+    inputs.listen(RECORDED, "recorded", tag=RECORDED_TAG)
+    try:
+        return _fly(ctx, truth, inputs)
+    finally:
+        inputs.close()
+
+
+def _fly(ctx: ServiceContext, truth: Truth, inputs: Inputs) -> int:
+    """Once every service is alive, fly the mission with the controllers and the recorder
+    that are there (their liveliness watched from then on)."""
+    dep, run = ctx.deployment, ctx.deployment.run
+    deputies = [d.name for d in dep.deputy]
     ctx.ready()
     others = [s for s in dep.services if s != ctx.name]
     alive = wait_for_alive(ctx.bus.session, ctx.run, others, run.startup_timeout)
@@ -83,23 +76,10 @@ def _serve(ctx: ServiceContext, truth: Truth) -> int:
         return 1
 
     present = {sc for sc in deputies if f"ctrl-{sc}" in alive}  # controllers to wait for
-
-    def on_presence(service: str, up: bool) -> None:
-        inbox.put((PRESENCE, (service.removeprefix("ctrl-"), up)))
-
-    def on_recorder(_service: str, up: bool) -> None:
-        inbox.put((RECORDER_PRESENCE, up))
-
     recorder = RecorderLead(run.fsw_period, present=RECORDER in alive)
-    watches = [
-        watch_alive(ctx.bus.session, ctx.run, "ctrl-*", on_presence),
-        watch_alive(ctx.bus.session, ctx.run, RECORDER, on_recorder),
-    ]
-    try:
-        return EnvironmentService(ctx, truth, inbox, present, recorder).run()
-    finally:
-        for watch in watches:
-            watch.undeclare()
+    inputs.watch("ctrl-*", PRESENCE)
+    inputs.watch(RECORDER, RECORDER_PRESENCE)
+    return EnvironmentService(ctx, truth, inputs.inbox, present, recorder).run()
 
 
 class EnvironmentService:

@@ -19,8 +19,8 @@ import sys
 
 import numpy as np
 
-from services.bus import queue_handler
 from services.config import DeploymentError, Fault, check_fault
+from services.flight.inputs import Inputs
 from services.flight.relative_navigation import RelativeNavigation
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.streams import FinalClock, SamplePairs
@@ -51,16 +51,15 @@ class NavigationService:
         self.deputy = ctx.deployment.deputy_named(sc)
         self.navigation = RelativeNavigation(ctx.deployment, self.deputy)
         self.period = self.deputy.navigation.period
-        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.inputs = Inputs(ctx)
         # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
         # two subscriptions interleave arbitrarily, and samples are paired by time
         for craft in ("chief", sc):
-            ctx.bus.subscribe(
-                truth_topic(craft), queue_handler(self.inbox), expected_schema="truth"
-            )
-        ctx.bus.subscribe(CLOCK, queue_handler(self.inbox), expected_schema="clock")
+            self.inputs.listen(truth_topic(craft), "truth")
+        self.inputs.listen(CLOCK, "clock")
         for kind in ("bias", "outage"):
-            ctx.bus.subscribe(fault_topic(kind), queue_handler(self.inbox), expected_schema="fault")
+            self.inputs.listen(fault_topic(kind), "fault")
+        self.inbox = self.inputs.inbox
         if ctx.joining:
             ctx.log("warning", "restarted into the running mission: publishing from the next truth")
         else:

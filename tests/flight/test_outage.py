@@ -117,3 +117,16 @@ def test_the_control_loop_flies_on_valid_samples_only_and_safe_past_the_stale_li
     assert loop.counters["invalid_samples"] == 18 and loop.counters["safe_attitude_steps"] == 1
     back = [s for s in _feed(loop, 310.0, True) + _feed(loop, 360.0, True) if isinstance(s, Step)]
     assert [(s.T, s.safe) for s in back] == [(360.0, False)]
+
+
+def test_a_restarted_loop_waits_for_its_first_sample_then_flies_from_the_step_it_can() -> None:
+    """Restarted into a running mission, the loop has no step until a sample comes: advancing
+    before it flies nothing (and raises nothing); the first sample sets the first step."""
+    dep = _deployment()
+    run = SimpleNamespace(fsw_period=60.0, nav_stale_limit=0.0)
+    loop = ControlLoop(Controller(dep, "lqr"), run, delay=0.0, joining=True)
+    assert list(loop.advance(lambda T: True, None)) == []
+    out = _feed(loop, 610.0, True)
+    assert [s.T for s in out if isinstance(s, Step)] == []  # the step at 660 s is its first
+    assert loop.next_tick == 660.0 and out[0].text.startswith("restarted: flying the LQR gains")
+    assert [s.T for s in _feed(loop, 660.0, True) if isinstance(s, Step)] == [660.0]
