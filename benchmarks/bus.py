@@ -36,7 +36,7 @@ import numpy as np
 import zenoh
 
 from services.bus import Bus, BusSettings, LinkModel, LinkSpec, open_session
-from services.ground.launcher import free_port
+from services.ground.launch.launcher import free_port
 from services.interface import SCHEMAS
 
 RUN = "bench"

@@ -2,7 +2,7 @@
 on the nominal model and where the craft's drag is twice the model's.
 
 Each point is ``deployments/realistic-nav.toml`` (or ``realistic-nav-2x.toml``) with every
-deputy's navigation noise set (``services.ground.sweep.noisy_table``), flown in one process
+deputy's navigation noise set (``services.ground.sweeps.sweep.noisy_table``), flown in one process
 (``run_in_process``, the services' code) with the LQR and model-fit deputies only; the paper's
 value iteration, which learns in none of these points, is measured by ``ddvi sweep noise``
 (docs/results.md).  A row's project figure is the model-fit deputy's final along-track error,
@@ -24,7 +24,7 @@ import sys
 from typing import Any
 
 from services.config import deployment_from_table, read_table
-from services.ground.sweep import inprocess_rows, sweep_points
+from services.ground.sweeps.sweep import inprocess_rows, sweep_points
 
 POINTS = {"realistic-nav": (0.0, 0.1, 1.0, 10.0), "realistic-nav-2x": (0.0, 0.1, 1.0, 10.0)}
 QUICK_POINTS = {"realistic-nav": (1.0,), "realistic-nav-2x": (1.0,)}

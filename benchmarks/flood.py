@@ -102,7 +102,7 @@ def _monitor_peak(launcher: int, stop: threading.Event, peak: list[int]) -> None
     while not stop.wait(0.1):
         try:
             for child in psutil.Process(launcher).children():
-                if "services.ground.monitor" in child.cmdline():
+                if "services.ground.monitoring.monitor" in child.cmdline():
                     status = Path(f"/proc/{child.pid}/status").read_text()
                     line = next(x for x in status.splitlines() if x.startswith("VmHWM"))
                     peak[0] = max(peak[0], int(line.split()[1]) * 1024)

@@ -60,7 +60,7 @@ import zenoh
 
 from benchmarks.floor_topology import TOPOLOGIES, FloorRecorder, client_settings, router_settings
 from services.bus import SERVICE_ZENOH_RUNTIME, Bus, BusSettings, open_session, wait_for_alive
-from services.ground.launcher import free_port
+from services.ground.launch.launcher import free_port
 from services.interface import SCHEMAS
 from services.interface.topics import (
     CLOCK,

@@ -8,7 +8,7 @@ credentials (``services.bus.security.issue_credentials``) and enforces
 its own topics and liveliness token.  The monitor's subscriber callback stamps and queues what
 arrives; its main thread, at the ground monitor's niceness, takes it apart message by message,
 decodes it (msgpack maps on the ``plain`` layer; the project's schema decode on ``bus``) and
-writes each message to ``recording.mcap`` with ``services.ground.recording.Recorder``,
+writes each message to ``recording.mcap`` with ``services.ground.storage.recording.Recorder``,
 flushing every ``FLUSH_PERIOD`` s.
 """
 
@@ -34,8 +34,8 @@ from services.bus.security import (
     issue_credentials,
     load_credentials,
 )
-from services.ground.monitor import FLUSH_PERIOD, NICENESS
-from services.ground.recording import RECORDING, Recorder, message_json_schema, ns
+from services.ground.monitoring.monitor import FLUSH_PERIOD, NICENESS
+from services.ground.storage.recording import RECORDING, Recorder, message_json_schema, ns
 from services.interface import SCHEMAS, MessageError, decode, schema_for_topic, unpack_batch
 
 TOPOLOGIES = ("peer", "routed")

@@ -26,8 +26,8 @@ from typing import Any
 from benchmarks.foxglove_client import FoxgloveClient
 from benchmarks.mission import _clock_span, _row
 from services.config import read_table, write_deployment
-from services.ground.launcher import free_port
-from services.ground.recording import RECORDING
+from services.ground.launch.launcher import free_port
+from services.ground.storage.recording import RECORDING
 
 TARGET = "≤ 1.10"
 

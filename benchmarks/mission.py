@@ -46,7 +46,7 @@ from mcap.reader import make_reader
 from benchmarks.floor import run_floor
 from services.config import Deployment, load_deployment, read_table, write_deployment
 from services.flight.inprocess import run_in_process
-from services.ground.recording import RECORDING
+from services.ground.storage.recording import RECORDING
 from services.interface.topics import CLOCK
 from services.model import duration
 
@@ -124,7 +124,7 @@ def _clock_span(path: Path) -> tuple[int, int]:
     recorded: the lock-step loop lies between, without the services' start-up and final
     stats."""
     with path.open("rb") as f:
-        # publish_time: the monitor's receive wall time (services.ground.recording)
+        # publish_time: the monitor's receive wall time (services.ground.storage.recording)
         stamps = [m.publish_time for _, _, m in make_reader(f).iter_messages(topics=[CLOCK])]
     return min(stamps), max(stamps)
 

@@ -35,8 +35,11 @@ KINDS = (  # the first matching frame from the innermost out names the kind
     ("start-up: imports", r"_find_and_load|_handle_fromlist"),
     ("logging", r"logging/__init__"),
     ("stats", r"publish_stats|Bus\.counters"),
-    ("recording: JSON and MCAP", r"services/ground/recording|mcap/"),
-    ("report and its data", r"services/ground/(report|figures|rundata|scoring|status)"),
+    ("recording: JSON and MCAP", r"services/ground/storage/recording|mcap/"),
+    (
+        "report and its data",
+        r"services/ground/(analysis/(report|figures|rundata|scoring)|monitoring/status)",
+    ),
     ("serialisation: encode, decode", r"services/interface/|msgpack"),
     ("bus: guards, budget, links, delivery", r"services/bus/"),
     ("zenoh calls", r"zenoh"),

@@ -16,7 +16,7 @@ do against the criterion: it starts closing the gap six orbits after the LQR.  W
 same draws.
 
 Draw i is run.seed i (1 to N), the navigation noise of ``ddvi sweep noise``
-(``services.ground.sweep.noisy_table``); the learner's exploration is seeded with it too.
+(``services.ground.sweeps.sweep.noisy_table``); the learner's exploration is seeded with it too.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ import numpy as np
 
 from services.config import deployment_from_table, read_table, resolve
 from services.flight import learners
-from services.ground.scoring import AS_GOOD_AS_LQR
-from services.ground.sweep import inprocess_rows, noisy_table
+from services.ground.analysis.scoring import AS_GOOD_AS_LQR
+from services.ground.sweeps.sweep import inprocess_rows, noisy_table
 from services.model.mission import lqr_gains
 
 DEPLOYMENT = "realistic-nav"

@@ -19,7 +19,7 @@ from services.exit_status import EXIT_FAIL, EXIT_USAGE
 
 def cmd_run(args: argparse.Namespace) -> int:
     from services.config import DeploymentError, load_deployment
-    from services.ground.launcher import Launcher
+    from services.ground.launch.launcher import Launcher
 
     if args.output is not None and not args.output.strip():
         print(
@@ -40,7 +40,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     live = None
     if args.live is not None:
-        from services.ground.live_address import LiveError, check_live, exposure_warning
+        from services.ground.monitoring.live_address import LiveError, check_live, exposure_warning
 
         try:
             address = check_live(args.live)
@@ -57,7 +57,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from services.ground.tap import monitor_command
+    from services.ground.monitoring.tap import monitor_command
 
     return int(monitor_command(args) or 0)
 
@@ -81,7 +81,7 @@ def _learn_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.live_address import LIVE_DEFAULT
+    from services.ground.monitoring.live_address import LIVE_DEFAULT
 
     p.add_argument(
         "deployment",
@@ -134,14 +134,14 @@ def _bench_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _monitor_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.tap import add_monitor_arguments
+    from services.ground.monitoring.tap import add_monitor_arguments
 
     add_monitor_arguments(p)
     p.set_defaults(func=cmd_monitor)
 
 
 def _sweep_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.sweep import add_sweep_arguments, sweep_command
+    from services.ground.sweeps.sweep import add_sweep_arguments, sweep_command
 
     add_sweep_arguments(p)
     p.set_defaults(func=sweep_command)
@@ -155,21 +155,21 @@ def _campaign_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fault_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.faults import add_fault_arguments, fault_command
+    from services.ground.launch.faults import add_fault_arguments, fault_command
 
     add_fault_arguments(p)
     p.set_defaults(func=fault_command)
 
 
 def _report_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.recover import add_report_arguments, report_command
+    from services.ground.analysis.recover import add_report_arguments, report_command
 
     add_report_arguments(p)
     p.set_defaults(func=report_command)
 
 
 def _netns_arguments(p: argparse.ArgumentParser) -> None:
-    from services.ground.netns import add_netns_arguments, netns_command
+    from services.ground.launch.netns import add_netns_arguments, netns_command
 
     add_netns_arguments(p)
     p.set_defaults(func=netns_command)

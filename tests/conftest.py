@@ -16,6 +16,8 @@ def run_name() -> str:
 @pytest.fixture
 def free_port() -> int:
     """A loopback TCP port nobody listens on right now."""
-    from services.ground.launcher import free_port as find_free_port  # only tests that need it
+    from services.ground.launch.launcher import (
+        free_port as find_free_port,  # only tests that need it
+    )
 
     return find_free_port()

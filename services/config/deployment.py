@@ -249,8 +249,8 @@ FAULT_KINDS = ("panel", "bias", "outage")
 @dataclass(frozen=True)
 class Host:
     """A separate network host for some services: a Linux network namespace ``netns``, joined
-    to the launcher's by a veth pair (``services.ground.netns``: ``ddvi netns up|down``).  The
-    services whose names match ``services`` (globs) run in it and reach the run's hub, a
+    to the launcher's by a veth pair (``services.ground.launch.netns``: ``ddvi netns up|down``).
+    The services whose names match ``services`` (globs) run in it and reach the run's hub, a
     Zenoh router in the launcher, over that link.  Needs ``bus.mode = "client"`` and a fixed
     ``bus.port``."""
 

@@ -4,7 +4,7 @@ A value out of range raises DeploymentError naming the key, the range and what i
 orbits above the atmosphere's floor (``environment.min_altitude``) with an eccentricity below
 one for every craft, a mission of at least one flight-software step, periods, counts and seeds
 a service can use, delays shorter than the mission, bus endpoints zenoh can open, and a number
-of deputies the launcher can start (:data:`MAX_DEPUTIES`; ``services.ground.lifecycle``
+of deputies the launcher can start (:data:`MAX_DEPUTIES`; ``services.ground.launch.lifecycle``
 estimates the processes and memory against the machine's before a run starts).
 """
 

@@ -134,12 +134,18 @@ SERVICES: tuple[ServiceName, ...] = (
         "one deputy's controller, the software under test",
     ),
     ServiceName(
-        "monitor", "services.ground.monitor", "the ground: records every message, writes the report"
+        "monitor",
+        "services.ground.monitoring.monitor",
+        "the ground: records every message, writes the report",
     ),
     ServiceName(
-        "launcher", "services.ground.launcher", "starts and supervises the services; acts on kills"
+        "launcher",
+        "services.ground.launch.launcher",
+        "starts and supervises the services; acts on kills",
     ),
-    ServiceName("ground-<pid>", "services.ground.faults", "an operator's `ddvi fault` command"),
+    ServiceName(
+        "ground-<pid>", "services.ground.launch.faults", "an operator's `ddvi fault` command"
+    ),
 )
 """Every kind of participant on the bus, by name."""
 

@@ -30,7 +30,7 @@ from services.bus import (
     zenoh_config,
 )
 from services.bus.guards import BOOTS_KEPT, JUMP_CONFIRM, REPLAY_WINDOW
-from services.ground.launcher import free_port
+from services.ground.launch.launcher import free_port
 from services.interface import MAX_BATCH, MAX_PAYLOAD, Message, MessageError, encode, pack_batch
 from tests.support import unique_run_name, wait_until
 

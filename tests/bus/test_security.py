@@ -28,7 +28,7 @@ from services.bus.security import (
     issue_tls,
     load_credentials,
 )
-from services.ground.launcher import free_port
+from services.ground.launch.launcher import free_port
 from services.interface import Message, encode
 from services.interface.topics import may_publish, topic_identity
 from tests.support import wait_until

@@ -256,7 +256,7 @@ def test_an_output_folder_that_cannot_be_made_is_one_line_and_exit_2(
 
 
 def test_a_deployment_the_machine_cannot_hold_is_refused(tmp_path: Path, capsys, monkeypatch):
-    from services.ground import lifecycle
+    from services.ground.launch import lifecycle
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(lifecycle, "SERVICE_BYTES", 1e15)  # a petabyte a process

@@ -20,7 +20,7 @@ from services.config import (
     read_table,
 )
 from services.flight.control import Controller
-from services.ground.recording import read_recording
+from services.ground.storage.recording import read_recording
 from services.interface import schema_for_topic
 
 SHORT = """

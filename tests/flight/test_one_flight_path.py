@@ -14,8 +14,8 @@ import pytest
 
 from services.config import Deployment, deployment_from_table, load_deployment, resolve
 from services.flight.inprocess import run_in_process
-from services.ground.recording import read_recording
-from services.ground.sweep import inprocess_rows, summary_rows
+from services.ground.storage.recording import read_recording
+from services.ground.sweeps.sweep import inprocess_rows, summary_rows
 from services.model import orbit_period
 from tests.support import fly
 

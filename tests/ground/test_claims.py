@@ -25,8 +25,8 @@ from services.bus import open_session, zenoh_config
 from services.bus.budget import BUDGET_BURST, BUDGET_SLACK
 from services.bus.security import OBSERVER, credentials_path, load_credentials
 from services.config import deployment_from_table
-from services.ground.claims import IN_FLIGHT, Claims
-from services.ground.recording import Recorded, read_recording
+from services.ground.analysis.claims import IN_FLIGHT, Claims
+from services.ground.storage.recording import Recorded, read_recording
 from services.interface import decode, encode, unpack_batch
 from tests.ground.test_security import _client, _wait_for_run
 

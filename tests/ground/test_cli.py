@@ -167,7 +167,7 @@ def test_a_command_imports_only_what_it_needs():
         "print(a.stuck_angle, 'scipy' in sys.modules, ','.join(ground))"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    ground = "services.ground.faults,services.ground.runfolder"
+    ground = "services.ground.launch,services.ground.launch.faults,services.ground.launch.runfolder"
     assert r.returncode == 0 and r.stdout.split() == ["30.0", "False", ground], r.stdout + r.stderr
 
 
@@ -175,7 +175,7 @@ def test_the_monitor_starts_without_the_mathematics():
     """The monitor records from its start with the bus, the codec and MCAP; scipy (the report's
     reference gains) loads only when it scores, at the end: a process of the mission each
     library would cost."""
-    code = "import sys, services.ground.monitor; print('scipy' in sys.modules)"
+    code = "import sys, services.ground.monitoring.monitor; print('scipy' in sys.modules)"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.split() == ["False"], r.stdout + r.stderr
 

@@ -22,7 +22,7 @@ import zenoh
 from benchmarks.flood import DEPLOYMENT
 from services.bus import open_session, zenoh_config
 from services.bus.security import OBSERVER, credentials_path, load_credentials
-from services.ground.recording import read_recording
+from services.ground.storage.recording import read_recording
 from services.interface import decode, encode, unpack_batch
 from tests.ground.test_security import _client, _wait_for_run
 

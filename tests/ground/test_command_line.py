@@ -18,12 +18,12 @@ from services.bus import error_text
 from services.cli import build_parser, main
 from services.config import deployment_from_table, read_table
 from services.config.files import DEPLOYMENTS_DIR, campaign_file, system_example
-from services.ground import netns
-from services.ground.lifecycle import log_reason
-from services.ground.run_keys import run_keyexpr
-from services.ground.rundata import RunData
-from services.ground.status import Status
-from services.ground.sweep import _point_text, sweep_points, unlearned_points
+from services.ground.analysis.rundata import RunData
+from services.ground.launch import netns
+from services.ground.launch.lifecycle import log_reason
+from services.ground.monitoring.run_keys import run_keyexpr
+from services.ground.monitoring.status import Status
+from services.ground.sweeps.sweep import _point_text, sweep_points, unlearned_points
 
 ROOT = DEPLOYMENTS_DIR.parent
 
@@ -91,7 +91,7 @@ def test_a_basilisk_deployment_without_basilisk_is_bad_input_before_launch(
 ) -> None:
     import importlib.util
 
-    from services.ground import launcher
+    from services.ground.launch import launcher
 
     real = importlib.util.find_spec
 

@@ -21,10 +21,10 @@ from mcap.reader import make_reader
 
 from benchmarks.flood import DEPLOYMENT
 from services.config import deployment_from_table
-from services.ground.disk import PART, REPORT_ROOM, space_left
-from services.ground.recording import Recorder, read_recording
-from services.ground.report import ReportNotWrittenError, write_report
-from services.ground.rundata import RunData
+from services.ground.analysis.report import ReportNotWrittenError, write_report
+from services.ground.analysis.rundata import RunData
+from services.ground.storage.disk import PART, REPORT_ROOM, space_left
+from services.ground.storage.recording import Recorder, read_recording
 
 ORBITS = 8.0
 SIZE = "2m"

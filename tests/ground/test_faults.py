@@ -26,7 +26,7 @@ from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
 from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment, resolve
 from services.flight.inprocess import run_in_process
-from services.ground.recording import read_recording
+from services.ground.storage.recording import read_recording
 from services.interface import MAX_PAYLOAD, encode, schema_for_topic, topics
 
 # every test here starts a mission through `ddvi run` (or the `ddvi fault` command)

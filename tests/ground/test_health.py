@@ -11,7 +11,7 @@ import psutil
 import pytest
 
 from benchmarks.flood import DEPLOYMENT, readable
-from services.ground.recording import read_recording
+from services.ground.storage.recording import read_recording
 from tests.support import fly, freeze
 
 pytestmark = pytest.mark.integration

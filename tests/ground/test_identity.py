@@ -21,7 +21,7 @@ import zenoh
 
 from services.bus import open_session, zenoh_config
 from services.bus.security import OBSERVER, credentials_path, load_credentials
-from services.ground.recording import Recorded
+from services.ground.storage.recording import Recorded
 from services.interface import decode, encode, unpack_batch
 from services.interface.topics import identity_mismatch
 from tests.ground.test_security import (

@@ -1,7 +1,7 @@
 """``ddvi run``'s process lifecycle: every way of stopping it stops every service (checked by
 PID) and leaves the partial report; a service that crashes at start-up is reported at once.
 
-Exit statuses (``services.ground.lifecycle``): 128 + N for signal N, 1 for a crash."""
+Exit statuses (``services.ground.launch.lifecycle``): 128 + N for signal N, 1 for a crash."""
 
 from __future__ import annotations
 
@@ -125,7 +125,7 @@ def test_a_second_sigint_while_stopping_with_sigint_inherited_ignored(tmp_path: 
 def test_the_services_of_a_killed_launcher_stop_by_themselves(tmp_path: Path) -> None:
     run = Run(tmp_path)
     run.wait_flying()
-    monitor = {p.pid for p in run.services() if "services.ground.monitor" in p.cmdline()}
+    monitor = {p.pid for p in run.services() if "services.ground.monitoring.monitor" in p.cmdline()}
     run.proc.kill()
     run.finish()
     # the parent-death signal: each service stops as on SIGTERM; the flight services at once,

@@ -1,4 +1,4 @@
-"""The live view (services.ground.live): a Foxglove WebSocket client (the protocol's
+"""The live view (services.ground.monitoring.live): a Foxglove WebSocket client (the protocol's
 ``foxglove.sdk.v1``) against the server in one process, against ``ddvi run --live`` and
 against ``ddvi monitor --live`` on a running mission; and the recording's timeline."""
 
@@ -24,15 +24,15 @@ from mcap.reader import make_reader
 from benchmarks.foxglove_client import SUBPROTOCOL, FoxgloveClient, Received
 from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment
-from services.ground.live import (
+from services.ground.monitoring.live import (
     LIVE_GAINS_SCHEMA,
     LiveServer,
     live_gains_topic,
     reference_gains,
     run_topics,
 )
-from services.ground.live_address import LiveAddress, LiveError, parse_address
-from services.ground.recording import (
+from services.ground.monitoring.live_address import LiveAddress, LiveError, parse_address
+from services.ground.storage.recording import (
     ALIVE_SCHEMA,
     message_json_schema,
     ns,

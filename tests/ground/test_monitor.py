@@ -29,8 +29,8 @@ from ddvi_core.constants import MU_EARTH
 from ddvi_core.orbit import rv_to_hill
 from services.bus import Bus, BusSettings, open_session, wait_for_alive
 from services.config import load_deployment
-from services.ground.recording import read_recording
-from services.ground.tap import add_monitor_arguments, format_sample, monitor_command
+from services.ground.monitoring.tap import add_monitor_arguments, format_sample, monitor_command
+from services.ground.storage.recording import read_recording
 from services.interface import topics
 from services.model import lqr_gains, orbit_period
 from tests.support import wait_until
@@ -92,7 +92,14 @@ class Monitor:
         args = ["--deployment", str(self.dep_path), "--run", run, "--hub", endpoint]
         with self.log_path.open("w") as log:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "services.ground.monitor", *args, "--out", str(self.out)],
+                [
+                    sys.executable,
+                    "-m",
+                    "services.ground.monitoring.monitor",
+                    *args,
+                    "--out",
+                    str(self.out),
+                ],
                 cwd=ROOT,
                 env=env,
                 stdout=log,

@@ -1,6 +1,6 @@
 """The mission across network namespaces: navigation and controllers on separate hosts, each
-joined to the launcher's Zenoh router by a veth pair (services/ground/netns.py).  Needs root; where
-namespaces cannot be made the tests are skipped with the reason (pytest -ra prints it)."""
+joined to the launcher's Zenoh router by a veth pair (services/ground/launch/netns.py).  Needs root;
+where namespaces cannot be made the tests are skipped with the reason (pytest -ra prints it)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from services.config import Deployment, deployment_from_table, read_table, write_deployment
-from services.ground import netns
+from services.ground.launch import netns
 
 pytestmark = pytest.mark.integration
 

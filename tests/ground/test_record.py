@@ -7,10 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from services.config import deployment_from_table
-from services.ground.lifecycle import EXIT_DEGRADED, EXIT_FAILED, EXIT_OK, verdict
-from services.ground.record import RecordGaps
-from services.ground.report import write_report
-from services.ground.rundata import RunData
+from services.ground.analysis.report import write_report
+from services.ground.analysis.rundata import RunData
+from services.ground.launch.lifecycle import EXIT_DEGRADED, EXIT_FAILED, EXIT_OK, verdict
+from services.ground.storage.record import RecordGaps
 from services.interface import decode, encode, topics
 
 DEP = deployment_from_table({"run": {"orbits": 0.05}, "deputy": [{"name": "alpha"}]})
@@ -75,7 +75,7 @@ def test_a_whole_record_says_so_and_what_the_recorder_lost_is_said_first(tmp_pat
 
 
 def test_no_report_says_why_the_space_left_and_what_is_saved(tmp_path: Path) -> None:
-    from services.ground.lifecycle import no_report
+    from services.ground.launch.lifecycle import no_report
 
     (tmp_path / "logs").mkdir()
     (tmp_path / "logs" / "monitor.log").write_text(

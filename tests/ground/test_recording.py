@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.ground.recording import Recorder, message_json_schema, ns, read_recording
+from services.ground.storage.recording import Recorder, message_json_schema, ns, read_recording
 from services.interface import SCHEMAS, MessageError, decode, encode, topics
 
 
@@ -58,7 +58,7 @@ def test_a_recording_reads_back_message_rejection_and_liveliness(tmp_path: Path)
 def test_a_recorded_message_of_an_older_version_is_upgraded_on_replay() -> None:
     """A nav message recorded before the measurement and covariance fields replays with the
     estimate as its measurement and a zero covariance; a current one replays as recorded."""
-    from services.ground.replay import _counters, _message
+    from services.ground.analysis.replay import _counters, _message
 
     old = {
         "schema": "nav",
@@ -106,9 +106,9 @@ def test_replay_reads_the_receive_wall_time_where_the_recording_keeps_it() -> No
     time in publish_time; one made before keeps it in log_time."""
     from mcap.records import Metadata
 
-    from services.ground.recording import TIMELINE
-    from services.ground.recover import Records
-    from services.ground.replay import _receive_wall_time
+    from services.ground.analysis.recover import Records
+    from services.ground.analysis.replay import _receive_wall_time
+    from services.ground.storage.recording import TIMELINE
 
     now = Records(metadata=[Metadata(name="ddvi", metadata={"run": "r", **TIMELINE})])
     before = Records(metadata=[Metadata(name="ddvi", metadata={"run": "r"})])

@@ -12,8 +12,8 @@ import pytest
 from mcap.reader import make_reader
 
 from services.cli import main as ddvi
-from services.ground.recording import RECORDING, Recorder
-from services.ground.recover import TRUNCATED, is_complete, recover
+from services.ground.analysis.recover import TRUNCATED, is_complete, recover
+from services.ground.storage.recording import RECORDING, Recorder
 from services.interface import decode, encode, topics
 
 DEPLOYMENT = """
@@ -154,7 +154,7 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
     said = read_until_flying(launcher.stderr)
     assert FLYING in said[-1], said
     time.sleep(3.0)
-    (monitor,) = [p for p in kids() if "services.ground.monitor" in p.cmdline()]
+    (monitor,) = [p for p in kids() if "services.ground.monitoring.monitor" in p.cmdline()]
     monitor.kill()
     _, rest = launcher.communicate(timeout=120)
     err = b"".join([*said, rest]).decode()

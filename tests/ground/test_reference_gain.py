@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from services.config import load_deployment
-from services.ground.report import write_report
-from services.ground.rundata import GainRecord, RunData, StatusRecord
+from services.ground.analysis.report import write_report
+from services.ground.analysis.rundata import GainRecord, RunData, StatusRecord
 from services.model import lqr_gains, true_lqr_gains
 
 # no truth samples: the position figures have no line to label

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.ground.lifecycle import EXIT_DEGRADED, EXIT_OK, verdict
-from services.ground.outcome import outcome, outcome_lines
-from services.ground.refusals import MAX_KINDS, OTHERS, Refusals
+from services.ground.analysis.outcome import outcome, outcome_lines
+from services.ground.analysis.refusals import MAX_KINDS, OTHERS, Refusals
+from services.ground.launch.lifecycle import EXIT_DEGRADED, EXIT_OK, verdict
 from services.interface import Message
 
 

@@ -19,7 +19,7 @@ import zenoh
 
 from services.bus import BusSettings, open_session
 from services.config import deployment_from_table
-from services.ground.credentials import hub_settings
+from services.ground.launch.credentials import hub_settings
 from services.interface import encode
 
 pytestmark = pytest.mark.integration

@@ -13,8 +13,8 @@ import pytest
 
 from services.bus.security import SECURITY_DIR, issue_credentials, write_private
 from services.config import load_deployment
-from services.ground.launcher import Launcher
-from services.ground.runfolder import make_run_folder
+from services.ground.launch.launcher import Launcher
+from services.ground.launch.runfolder import make_run_folder
 
 MISSION = """
 [run]

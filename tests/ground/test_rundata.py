@@ -11,7 +11,7 @@ import pytest
 from ddvi_core.constants import MU_EARTH
 from ddvi_core.orbit import rv_to_hill
 from services.config import deployment_from_table
-from services.ground.rundata import RunData, chief_acceleration, hill_states
+from services.ground.analysis.rundata import RunData, chief_acceleration, hill_states
 from services.interface import decode, encode, topics
 
 A = 6678136.0

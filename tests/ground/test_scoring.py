@@ -1,5 +1,5 @@
-"""One scoring of a deputy (``services.ground.scoring.deputy_metrics``): the same outcome is
-scored alike by the run report, both sweep paths and both campaign paths, and a learner that
+"""One scoring of a deputy (``services.ground.analysis.scoring.deputy_metrics``): the same outcome
+is scored alike by the run report, both sweep paths and both campaign paths, and a learner that
 flies no learned gain has no gain error in any of them."""
 
 from __future__ import annotations
@@ -14,19 +14,19 @@ import pytest
 
 import services.flight.inprocess
 from services.config import deployment_from_table, read_table
-from services.ground import report, scoring
-from services.ground.campaign import run as campaign_run
-from services.ground.campaign.dispersions import spec_from_table
-from services.ground.campaign.report import stats_table
-from services.ground.rundata import GainRecord, RunData
-from services.ground.scoring import (
+from services.ground.analysis import report, scoring
+from services.ground.analysis.rundata import GainRecord, RunData
+from services.ground.analysis.scoring import (
     AS_GOOD_AS_LQR,
     LEARNED_WITHIN_10_PERCENT,
     NOT_LEARNED_TEXT,
     final_error_below,
 )
-from services.ground.sweep import inprocess_rows, summary_rows
-from services.ground.sweep_table import markdown_table
+from services.ground.campaign import run as campaign_run
+from services.ground.campaign.dispersions import spec_from_table
+from services.ground.campaign.report import stats_table
+from services.ground.sweeps.sweep import inprocess_rows, summary_rows
+from services.ground.sweeps.sweep_table import markdown_table
 from services.interface.topics import log_topic
 from services.model import lqr_gains, orbit_period
 

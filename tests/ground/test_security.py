@@ -18,7 +18,7 @@ import zenoh
 
 from services.bus import BusSettings, open_session, zenoh_config
 from services.bus.security import OBSERVER, Credentials, credentials_path, load_credentials
-from services.ground.recording import Recorded, read_recording
+from services.ground.storage.recording import Recorded, read_recording
 from services.interface import decode, encode, unpack_batch
 from services.interface.topics import may_publish
 

@@ -13,7 +13,7 @@ import pytest
 
 from services.cli import main
 from services.config import deployment_from_table, load_deployment, read_table
-from services.ground.sweep import (
+from services.ground.sweeps.sweep import (
     VELOCITY_NOISE_RATIO,
     impaired_table,
     largest_learning_value,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from services.ground.tap import format_sample
+from services.ground.monitoring.tap import format_sample
 from services.interface import encode, pack_batch
 
 

@@ -30,7 +30,6 @@ from typing import Any
 
 from services.config import DeploymentError, deployment_from_table, read_table
 from services.config.files import campaign_file, deployment_dirs
-from services.ground import lifecycle
 from services.ground.campaign.dispersions import (
     CampaignError,
     CampaignSpec,
@@ -39,6 +38,7 @@ from services.ground.campaign.dispersions import (
 )
 from services.ground.campaign.run import MODES, execute
 from services.ground.campaign.store import ResultStore, read_meta, read_rows
+from services.ground.launch import lifecycle
 from services.model import holding_warnings
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")

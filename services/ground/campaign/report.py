@@ -18,8 +18,8 @@ import numpy as np
 
 from ddvi_core.learning_config import LearningConfig
 from services.config import controller_label
+from services.ground.analysis.scoring import final_error_below
 from services.ground.campaign.dispersions import CampaignSpec
-from services.ground.scoring import final_error_below
 
 PERCENTILES = (50, 90, 95, 99)
 WORST = 5  # runs listed per controller

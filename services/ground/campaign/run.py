@@ -26,7 +26,7 @@ from services.config import (
     deployment_from_table,
     write_deployment,
 )
-from services.ground.scoring import deputy_metrics, holding_notes, inprocess_outcome
+from services.ground.analysis.scoring import deputy_metrics, holding_notes, inprocess_outcome
 
 MODES = ("inprocess", "distributed")
 ROWS_VERSION = 3
@@ -43,10 +43,11 @@ COLUMNS = {
     "can_hold": "can_hold",
     "note": "note",
 }
-"""A campaign column -> the metric of ``services.ground.scoring.deputy_metrics`` it holds."""
+"""A campaign column -> the metric of ``services.ground.analysis.scoring.deputy_metrics`` it
+holds."""
 METRICS = ("controller", *COLUMNS)
 """Each deputy's columns, ``<deputy>.<metric>``: its controller, then its metrics
-(``services.ground.scoring``): |y - y_ref| at the end and its largest value over the last
+(``services.ground.analysis.scoring``): |y - y_ref| at the end and its largest value over the last
 orbit (m), |K - K*| / |K*| of the gains it flies at the end against the run's true optimal gain
 K* (``services.model.true_lqr_gains``; NULL for a learner that flies no learned gain), the orbit
 it first switched to learned gains at (NULL: never), whether it flies learned gains at the end

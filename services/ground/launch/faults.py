@@ -73,12 +73,12 @@ from services.config import (
     load_deployment,
 )
 from services.config.ranges import check_bias
-from services.ground.runfolder import DEPLOYMENT_FILE
+from services.ground.launch.runfolder import DEPLOYMENT_FILE
 from services.interface import decode, topics
 
 if TYPE_CHECKING:
     from services.config.deployment import Link
-    from services.ground.credentials import RunBus
+    from services.ground.launch.credentials import RunBus
 
 KINDS = ("kill", "panel", "bias", "outage", "link")
 
@@ -170,7 +170,12 @@ def locate_run(run: str, output: str, hub: str | None, user: str, insecure: bool
     (unless ``insecure``: ``--hub`` does not get round that)."""
     # imported here: `ddvi fault` parses its arguments with the fewest modules (a running
     # mission waits for nobody)
-    from services.ground.credentials import InsecureRunError, RunBus, RunNotFoundError, find_run
+    from services.ground.launch.credentials import (
+        InsecureRunError,
+        RunBus,
+        RunNotFoundError,
+        find_run,
+    )
 
     try:
         found = find_run(run, output, user, insecure)
@@ -248,7 +253,7 @@ def _params(args: argparse.Namespace, target: str) -> tuple[dict[str, Any], str 
 def run_deployment(run: str, output: str) -> Deployment | None:
     """The deployment the run flies, from the copy in its folder (``deployment.toml``); None
     when no run folder is here (a run reached by --hub) or it holds no copy."""
-    from services.ground.credentials import RunNotFoundError, run_folder
+    from services.ground.launch.credentials import RunNotFoundError, run_folder
 
     try:
         path = run_folder(run, output) / DEPLOYMENT_FILE

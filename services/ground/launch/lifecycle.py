@@ -31,9 +31,9 @@ import zenoh
 
 from services.bus import watch_alive
 from services.flight.runtime import STOP_SIGNALS
-from services.ground.disk import size_text, space_left
-from services.ground.outcome import flood_text, impossible_text
-from services.ground.record import gaps_text, stop_text
+from services.ground.analysis.outcome import flood_text, impossible_text
+from services.ground.storage.disk import size_text, space_left
+from services.ground.storage.record import gaps_text, stop_text
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_DEGRADED = 0, 1, 2, 3
 LOG_TAIL = 8  # a crashed service's last log lines the launcher shows
@@ -194,7 +194,7 @@ def resource_problems(dep: Any) -> tuple[list[str], str | None]:
 
 def command_problems(commands: Mapping[str, Any]) -> dict[str, int]:
     """The outcome's counts of commands refused, stale, missing or late
-    (``services.ground.outcome``), those not zero."""
+    (``services.ground.analysis.outcome``), those not zero."""
     found = {k: int(commands.get(k, 0) or 0) for k in COMMAND_PROBLEMS}
     return {k: v for k, v in found.items() if v}
 
@@ -211,7 +211,7 @@ def final_line(summary: Mapping[str, Any], folder: Path, seconds: float) -> tupl
 def no_report(folder: Path, status: int | None) -> str:
     """``ddvi run``'s line when the monitor wrote no report: why (its log's last error), the
     space left on the run folder's disk, and what is saved there."""
-    from services.ground.recording import RECORDING  # the recorder's module only here
+    from services.ground.storage.recording import RECORDING  # the recorder's module only here
 
     why = log_reason(folder / "logs" / "monitor.log").removeprefix("no report: ")
     recording = folder / RECORDING
@@ -226,7 +226,8 @@ def no_report(folder: Path, status: int | None) -> str:
 
 
 def verdict(summary: Mapping[str, Any]) -> tuple[int, str]:
-    """The exit status and one line for a run's summary.json (``services.ground.report``)."""
+    """The exit status and one line for a run's summary.json
+    (``services.ground.analysis.report``)."""
     out = summary.get("outcome", {})
     record = out.get("record", {})
     if record.get("recording") is not None:  # the disk failed the run's record

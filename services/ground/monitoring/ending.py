@@ -1,5 +1,5 @@
-"""When the monitor's recording loop ends (``services.ground.monitor``): after the final clock,
-once every other service has finished and what each said it published has come (or a bounded
+"""When the monitor's recording loop ends (``services.ground.monitoring.monitor``): after the final
+clock, once every other service has finished and what each said it published has come (or a bounded
 wait passed); on a stop request, once what is queued has been recorded (bounded)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 from typing import Protocol
 
-from services.ground.rundata import RunData
+from services.ground.analysis.rundata import RunData
 
 log = logging.getLogger("ddvi.monitor")
 

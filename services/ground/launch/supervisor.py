@@ -19,8 +19,8 @@ import zenoh
 from services.bus import Bus
 from services.config import Deployment, DeploymentError, check_kill
 from services.flight.health import HANG_MARGIN, HANG_STATUS
-from services.ground import lifecycle
-from services.ground.processes import ServiceProcesses
+from services.ground.launch import lifecycle
+from services.ground.launch.processes import ServiceProcesses
 from services.interface import MessageError, decode, unpack_batch
 from services.interface.topics import CLOCK, log_topic, stats_topic
 

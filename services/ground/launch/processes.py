@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import IO
 
 from services.config import Deployment
-from services.ground import credentials
-from services.ground.netns import hub_address
+from services.ground.launch import credentials
+from services.ground.launch.netns import hub_address
 
 MODULES = {
     "environment": "services.flight.environment",
-    "monitor": "services.ground.monitor",
+    "monitor": "services.ground.monitoring.monitor",
     "nav": "services.flight.navigation",
     "ctrl": "services.flight.controller",
 }
@@ -102,7 +102,7 @@ class ServiceProcesses:
         # a service stops by itself when the launcher dies (services.flight.runtime)
         env["DDVI_LAUNCHER_PID"] = str(os.getpid())
         # the monitor keeps the terminal for its live status (and logs to its file too:
-        # services.ground.monitor); the others log to files
+        # services.ground.monitoring.monitor); the others log to files
         stderr = None if name == "monitor" and not self.quiet else log
         popen = subprocess.Popen(cmd, stdout=log, stderr=stderr, env=env, start_new_session=True)
         if (old := self.procs.get(name)) is not None:

@@ -24,7 +24,7 @@ components in one process with their links emulated (a 40-orbit mission in secon
 commands and figures as the launcher's in lock-step, unless a link jitters or reorders).
 
 Writes ``<output>/sweep-<kind>-<name>-<stamp>/``: ``sweep.csv`` (one row per run and deputy),
-``sweep.md`` (the same table), ``sweep.png`` (``services.ground.sweep_table``), the derived
+``sweep.md`` (the same table), ``sweep.png`` (``services.ground.sweeps.sweep_table``), the derived
 deployments and every launched run's own folder; prints the table.  Every gain error is
 against the optimal gain K* of the truth's linear model of that run.
 """
@@ -49,14 +49,14 @@ from services.config import (
     resolve,
     write_deployment,
 )
-from services.ground.scoring import (
+from services.ground.analysis.scoring import (
     LEARNED_WITHIN_10_PERCENT,
     deputy_metrics,
     failed_metrics,
     holding_notes,
     inprocess_outcome,
 )
-from services.ground.sweep_table import (
+from services.ground.sweeps.sweep_table import (
     POINT,
     UNITS,
     largest_learning_value,
@@ -119,14 +119,14 @@ def noisy_table(
 
 
 def _row(point: dict[str, Any], deputy: str, controller: str, **results: Any) -> dict[str, Any]:
-    """A row of the table: the point, the deputy, its metrics (``services.ground.scoring``)
+    """A row of the table: the point, the deputy, its metrics (``services.ground.analysis.scoring``)
     and any link counters."""
     return {**point, "deputy": deputy, "controller": controller, **results}
 
 
 def summary_rows(point: dict[str, Any], summary: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per deputy of a launched run's summary.json: the metrics its report scored
-    (``services.ground.scoring.deputy_metrics``) and the link counters."""
+    (``services.ground.analysis.scoring.deputy_metrics``) and the link counters."""
     services = summary["messages"]["services"]
     env = services.get("environment", {})
     rows = []
@@ -288,7 +288,7 @@ def sweep_points(
 
 def _launch(path: Path, folder: Path, quiet: bool) -> dict[str, Any] | None:
     """Run one derived deployment through the launcher; its summary.json (None: no report)."""
-    from services.ground.launcher import Launcher
+    from services.ground.launch.launcher import Launcher
 
     launcher = Launcher(load_deployment(str(path)), out_root=str(folder), quiet=quiet)
     status = launcher.execute()

@@ -1,8 +1,8 @@
 """``ddvi monitor --run RUN --live [HOST:PORT]``: a running mission served to Foxglove live.
 
 A tap on the run's bus (as the observer, a subscribe-only user, on a secure bus) that serves
-every message it hears through ``services.ground.live.LiveServer``: the channels of the run's
-deployment (attached to its recording) advertised at once, each message at its simulation
+every message it hears through ``services.ground.monitoring.live.LiveServer``: the channels of the
+run's deployment (attached to its recording) advertised at once, each message at its simulation
 time.  Liveliness changes are the monitor's alone (``ddvi run --live`` serves them).  It runs
 until Ctrl-C, ``--count`` messages or ``--seconds`` s; the flight never waits for it (the
 subscriber's callback only queues).
@@ -27,11 +27,11 @@ from mcap.stream_reader import StreamReader
 from services.bus import error_text, open_session
 from services.bus.security import OBSERVER
 from services.config import Deployment, DeploymentError, deployment_from_table
-from services.ground.credentials import RunNotFoundError, find_run, run_folder
-from services.ground.live import LiveServer, live_server
-from services.ground.live_address import LiveError, check_live, exposure_warning
-from services.ground.recording import RECORDING
-from services.ground.run_keys import run_keyexpr
+from services.ground.launch.credentials import RunNotFoundError, find_run, run_folder
+from services.ground.monitoring.live import LiveServer, live_server
+from services.ground.monitoring.live_address import LiveError, check_live, exposure_warning
+from services.ground.monitoring.run_keys import run_keyexpr
+from services.ground.storage.recording import RECORDING
 from services.interface import MessageError, decode, schema_for_topic, unpack_batch
 
 log = logging.getLogger("ddvi.live")

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from services.ground.rundata import CraftData, DeputySeries, FloatArray, RunData
+from services.ground.analysis.rundata import CraftData, DeputySeries, FloatArray, RunData
 
 K_NAMES = ("x", "y", "xdot", "ydot")  # the in-plane state the gain K acts on (mission.IN_PLANE)
 K_UNITS = ("1/m", "1/m", "s/m", "s/m")  # u = sigma3 (an MRP, no unit) per unit of that state

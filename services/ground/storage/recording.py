@@ -33,8 +33,8 @@ import orjson
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 
-from services.ground.disk import REPORT_ROOM, RecordFile, size_text, space_left
-from services.ground.record import RecordGaps, RecordingStop
+from services.ground.storage.disk import REPORT_ROOM, RecordFile, size_text, space_left
+from services.ground.storage.record import RecordGaps, RecordingStop
 from services.interface import (
     REASONS,
     SCHEMAS,

@@ -1,10 +1,10 @@
 """A run's report from its recorded messages, as the monitor would have written it live.
 
-``replay`` feeds every recorded bus message (``services.ground.recording``'s JSON channels)
+``replay`` feeds every recorded bus message (``services.ground.storage.recording``'s JSON channels)
 back through the monitor's rules into a ``RunData`` and writes the report: a message seen
 already or older than its publisher's window (``services.bus.SequenceGuards``) is kept out, a
 clock from anyone but the environment is not obeyed, undecodable payloads are counted as
-rejected by reason.  Used by ``ddvi report`` (``services.ground.recover``).
+rejected by reason.  Used by ``ddvi report`` (``services.ground.analysis.recover``).
 """
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ from typing import Any
 
 from services.bus import SEQUENCE_REASONS, SequenceGuards
 from services.config import Deployment
-from services.ground.outcome import TIME_MASTER
-from services.ground.record import RecordGaps
-from services.ground.recording import TIMELINE
-from services.ground.report import write_report
-from services.ground.rundata import RunData
+from services.ground.analysis.outcome import TIME_MASTER
+from services.ground.analysis.report import write_report
+from services.ground.analysis.rundata import RunData
+from services.ground.storage.record import RecordGaps
+from services.ground.storage.recording import TIMELINE
 from services.interface import (
     REASONS,
     SCHEMAS,
@@ -75,7 +75,7 @@ def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
 
 
 def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, Any]:
-    """Write the report of ``records`` (``services.ground.recover.Records``) to ``folder``;
+    """Write the report of ``records`` (``services.ground.analysis.recover.Records``) to ``folder``;
     return its summary."""
     data = RunData(dep, run, _dropped(records))
     guards = SequenceGuards()
@@ -130,7 +130,7 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
 def _dropped(records: Any) -> Callable[[str], int]:
     """What the monitor's rate budget dropped unread from each publisher, as its last stats
     in the recording say (``flood.<publisher>``): a service's stats may count those
-    (``services.ground.claims``)."""
+    (``services.ground.analysis.claims``)."""
     stats = topics.stats_topic("monitor")
     ids = {k for k, c in records.channels.items() if c.topic == stats}
     last = next((m for m in reversed(records.messages) if m.channel_id in ids), None)

@@ -1,12 +1,12 @@
 """A sweep's results: its rows as a table (CSV and markdown), its plot, and what counts as
-learning in it.  ``services.ground.sweep`` runs the missions and makes the rows: one per run
+learning in it.  ``services.ground.sweeps.sweep`` runs the missions and makes the rows: one per run
 (a point of the sweep) and deputy, as dicts keyed by the names of ``columns(kind)``.
 
 Every gain error is |K - K*| / |K*| against K*, the optimal gain of the truth's linear model
 of that run (``services.model.true_lqr_gains``), with the error against the nominal model's
-LQR gain in its own column; each row's metrics are ``services.ground.scoring.deputy_metrics``'
-(in the CSV a learner that flies no learned gain has empty gain errors and learned false; in
-the markdown table "not learned").
+LQR gain in its own column; each row's metrics are
+``services.ground.analysis.scoring.deputy_metrics``' (in the CSV a learner that flies no learned
+gain has empty gain errors and learned false; in the markdown table "not learned").
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import csv
 from pathlib import Path
 from typing import Any
 
-from services.ground.scoring import LEARNED_WITHIN_10_PERCENT, METRICS, table_cell
+from services.ground.analysis.scoring import LEARNED_WITHIN_10_PERCENT, METRICS, table_cell
 
 UNITS = {"delay": "s", "loss": "probability", "noise": "m"}
 """Sweep kind -> the unit of its swept value."""
@@ -31,8 +31,8 @@ RESULTS = [
     "can_hold",
     *(m for m in METRICS if m not in ("completed", "can_hold", "note")),
 ]
-"""A row's deputy and its metrics (``services.ground.scoring.METRICS``; the note last, in noise
-sweeps)."""
+"""A row's deputy and its metrics (``services.ground.analysis.scoring.METRICS``; the note last, in
+noise sweeps)."""
 LINKS = ["dropped", "delayed", "late", "missing"]
 
 HEADERS = {

@@ -3,8 +3,8 @@
 Reads a deployment, is the run's zenoh hub (the endpoint every service connects to), starts each
 service as its own OS process, all at once (the environment, the time master, flies once it
 sees every other service alive), waits for their liveliness tokens, watches them while the
-mission flies (``services.ground.supervisor``: kill faults, restarts by policy), waits for the
-monitor to write its report, then stops everything (SIGTERM, then SIGKILL after a grace
+mission flies (``services.ground.launch.supervisor``: kill faults, restarts by policy), waits for
+the monitor to write its report, then stops everything (SIGTERM, then SIGKILL after a grace
 period): no orphan, no hang.
 
 Inputs: ``fault/kill`` (fault messages, ``ddvi fault RUN kill SERVICE``).  Outputs:
@@ -34,12 +34,12 @@ import zenoh
 from services.bus import Bus, BusSettings, error_text, open_session, queue_handler
 from services.bus.security import write_private
 from services.config import Deployment
-from services.ground import credentials, lifecycle
-from services.ground.netns import exists as netns_exists
-from services.ground.netns import hub_address
-from services.ground.processes import ServiceProcesses
-from services.ground.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
-from services.ground.supervisor import Supervisor
+from services.ground.launch import credentials, lifecycle
+from services.ground.launch.netns import exists as netns_exists
+from services.ground.launch.netns import hub_address
+from services.ground.launch.processes import ServiceProcesses
+from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
+from services.ground.launch.supervisor import Supervisor
 from services.interface.topics import fault_topic
 from services.model import holding_warnings
 
@@ -63,7 +63,8 @@ class Launcher:
         live: str | None = None,
     ) -> None:
         self.dep = dep
-        self.live = live  # HOST:PORT the monitor serves the live view on (services.ground.live)
+        # HOST:PORT the monitor serves the live view on (services.ground.monitoring.live)
+        self.live = live
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -84,7 +85,7 @@ class Launcher:
             print(f"ddvi run: {text}", file=sys.stderr, flush=True)
 
     def execute(self) -> int:
-        """Run the mission; the exit status (``services.ground.lifecycle``): 0 completed, 1
+        """Run the mission; the exit status (``services.ground.launch.lifecycle``): 0 completed, 1
         failed or ended early, 2 bad input, 3 completed with commands refused, stale or
         missing, 128 + N stopped by signal N (every service stopped, the partial report
         written)."""
@@ -290,7 +291,7 @@ class Launcher:
         """The monitor died: write the report from its recording, up to the last complete
         chunk (``ddvi report``), so that a run never ends without one."""
         try:
-            from services.ground.recover import recover
+            from services.ground.analysis.recover import recover
 
             n = recover(self.out).messages
             self.say(

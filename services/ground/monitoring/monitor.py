@@ -2,11 +2,11 @@
 
 Run by the launcher, first of all services::
 
-    python -m services.ground.monitor --deployment F --run R --hub H --out DIR
+    python -m services.ground.monitoring.monitor --deployment F --run R --hub H --out DIR
 
 It subscribes to ``ddvi/<run>/**`` with a raw zenoh subscriber (not ``Bus.subscribe``, so that
 undecodable payloads are recorded too) and to the run's liveliness tokens, and writes
-``DIR/recording.mcap`` (``services.ground.recording``; a batch,
+``DIR/recording.mcap`` (``services.ground.storage.recording``; a batch,
 ``services.interface.unpack_batch``, message by message).  A sample past its key's rate budget
 (``services.bus.budget``) is dropped in the subscriber's callback, unread and unqueued, and
 counted (``flooded``, ``flood.<publisher>``): a flood never puts the monitor behind.
@@ -16,26 +16,27 @@ sequence window (``services.bus.SequenceGuard``), is recorded but kept out of th
 counted (``ignored.duplicate``, ``ignored.stale``); a payload whose schema is not the one its
 topic carries (``services.interface.schema_for_topic``) is rejected ``wrong_schema``. One its
 publisher may not send, or whose body names another deputy or service than its topic, is
-recorded but believed of nobody (``services.ground.refusals``: counted by publisher, topic and
-reason, listed in the report).
+recorded but believed of nobody (``services.ground.analysis.refusals``: counted by publisher,
+topic and reason, listed in the report).
 
 The file is flushed (chunk closed and written to the OS) every ``FLUSH_PERIOD`` s, so a kill -9
 of the monitor loses at most that much; ``read_recording`` reads such a footer-less file too.
 On a normal stop and on SIGTERM the writer is closed (summary and footer written).
 
 When the ``clock`` message with ``final = true`` arrives the monitor waits until every other
-service of the deployment has finished or ``FINAL_WAIT`` s pass (``services.ground.ending``),
-then closes the recording, writes the report (``services.ground.report``) and exits 0. A
-service seen alive has finished when its liveliness token is gone (services publish their final
-stats before leaving); one never seen alive, when it has sent stats with t >= the final time.
+service of the deployment has finished or ``FINAL_WAIT`` s pass
+(``services.ground.monitoring.ending``), then closes the recording, writes the report
+(``services.ground.analysis.report``) and exits 0. A service seen alive has finished when its
+liveliness token is gone (services publish their final stats before leaving); one never seen
+alive, when it has sent stats with t >= the final time.
 Messages from different publishers are not ordered with respect to each other, so a service's
 final stats may arrive before the final clock; what arrives within ``FINAL_GRACE`` s after the
 last service finished is still recorded. SIGTERM before that closes the recording and writes a
 partial report (``"completed": false``), also exit 0.
 
-Live status: ``services.ground.status``, refreshed every ``DRAW_PERIOD`` s.  With ``--live
-HOST:PORT`` (``ddvi run --live``) every message recorded is also served to Foxglove
-(``services.ground.live``), after it is recorded and never in its way.
+Live status: ``services.ground.monitoring.status``, refreshed every ``DRAW_PERIOD`` s.  With
+``--live HOST:PORT`` (``ddvi run --live``) every message recorded is also served to Foxglove
+(``services.ground.monitoring.live``), after it is recorded and never in its way.
 """
 
 from __future__ import annotations
@@ -60,15 +61,15 @@ import zenoh
 from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards, worth_saying
 from services.flight.health import RECORDER_ACK_STEPS
 from services.flight.runtime import ServiceContext, run_service
-from services.ground.disk import LogFile
-from services.ground.ending import Ending
-from services.ground.live import LiveServer, live_server
-from services.ground.live_address import parse_address
-from services.ground.record import RecordGaps
-from services.ground.recording import RECORDING, TIMELINE, Recorder
-from services.ground.report import ReportNotWrittenError, write_report
-from services.ground.rundata import RunData
-from services.ground.status import Status
+from services.ground.analysis.report import ReportNotWrittenError, write_report
+from services.ground.analysis.rundata import RunData
+from services.ground.monitoring.ending import Ending
+from services.ground.monitoring.live import LiveServer, live_server
+from services.ground.monitoring.live_address import parse_address
+from services.ground.monitoring.status import Status
+from services.ground.storage.disk import LogFile
+from services.ground.storage.record import RecordGaps
+from services.ground.storage.recording import RECORDING, TIMELINE, Recorder
 from services.interface import (
     REASONS,
     Message,
@@ -128,7 +129,7 @@ class Monitor:
         # it must not end the mission nor move its time
         self.counters["refused.clock"] = 0
         # a message its publisher may not send, or whose body names another deputy or service
-        # than its topic: recorded, never believed (services.ground.refusals)
+        # than its topic: recorded, never believed (services.ground.analysis.refusals)
         self.counters["refused.origin"] = 0
         self.guards = SequenceGuards()
         self.alive: set[str] = set()

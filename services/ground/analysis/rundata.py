@@ -3,8 +3,8 @@
 ``RunData`` keeps, per spacecraft, the time series the report needs (truth, navigation,
 commands, gains, controller status) in compact ``array('d')`` buffers, plus every service's
 counters as its stats say them, each believed only when it can be true
-(``services.ground.claims``: against what arrived from the service and what is possible), and
-the notable events (faults, warnings, errors).
+(``services.ground.analysis.claims``: against what arrived from the service and what is possible),
+and the notable events (faults, warnings, errors).
 
 The truth Hill state is ``ddvi_core.orbit.rv_to_hill`` of deputy vs chief at the same sample
 time, with the chief's gravitational acceleration (two-body + J2 when the deployment has J2)
@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 from ddvi_core.orbit import hill_frame, rv_to_hill
 from ddvi_core.truth import acceleration
 from services.config import Deployment, Deputy
-from services.ground.claims import Claims
-from services.ground.refusals import Refusals
+from services.ground.analysis.claims import Claims
+from services.ground.analysis.refusals import Refusals
 from services.interface import Message
 from services.model import duration, orbit_period
 
@@ -121,7 +121,8 @@ class RunData:
         self.final_seen = False
         self.final_t: float | None = None  # time of the final clock
         # every service's stats, each believed only when possible; ``dropped``: what the
-        # ground's rate budget dropped unread from a publisher so far (services.ground.claims)
+        # ground's rate budget dropped unread from a publisher so far
+        # (services.ground.analysis.claims)
         self.claims = Claims(dep, run, dropped)
         self.stats = self.claims.stats  # service -> counters, all its processes
         self.stats_t = self.claims.stats_t  # service -> latest t of its believed stats

@@ -5,15 +5,15 @@
     timeseries.csv   per truth sample time and deputy: t, orbits, the deputy's Hill state from
                      truth (vs the chief), its navigation state at that time (blank if none),
                      the commanded sigma3 in force (zero-order hold on ``for_t``), controller phase
-    *.png            the paper's figures (``services.ground.figures``)
+    *.png            the paper's figures (``services.ground.analysis.figures``)
     summary.json     run, completion, errors at the end, gains against the reference,
                      message counters
     report.md        the summary table and the figure list
 
-Each file is written whole or not at all (``services.ground.disk``): on a nearly full disk the
-timeseries and the figures take only what is left beyond the room kept for report.md and
+Each file is written whole or not at all (``services.ground.storage.disk``): on a nearly full disk
+the timeseries and the figures take only what is left beyond the room kept for report.md and
 summary.json, and whatever did not fit is named in both (``not_written``).  report.md's first
-lines say whether the run's record is whole (``services.ground.record``).
+lines say whether the run's record is whole (``services.ground.storage.record``).
 
 Every gain error is |K - K*| / |K*| against K*, the optimal gain of the truth's linear model
 of that run (``services.model.true_lqr_gains``: the truth's density, facet area and factors),
@@ -34,12 +34,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from services.ground.disk import REPORT_ROOM, failure, size_text, space_left, write_whole
-from services.ground.figures import FIGURES, write_figures
-from services.ground.outcome import outcome, outcome_lines
-from services.ground.record import RecordGaps, record_block, record_line
-from services.ground.rundata import CraftData, DeputySeries, FloatArray, GainRecord, RunData
-from services.ground.scoring import (
+from services.ground.analysis.figures import FIGURES, write_figures
+from services.ground.analysis.outcome import outcome, outcome_lines
+from services.ground.analysis.rundata import (
+    CraftData,
+    DeputySeries,
+    FloatArray,
+    GainRecord,
+    RunData,
+)
+from services.ground.analysis.scoring import (
     NOT_LEARNED,
     DeputyOutcome,
     deputy_metrics,
@@ -47,6 +51,8 @@ from services.ground.scoring import (
     reference_gains,
     table_cell,
 )
+from services.ground.storage.disk import REPORT_ROOM, failure, size_text, space_left, write_whole
+from services.ground.storage.record import RecordGaps, record_block, record_line
 from services.interface.topics import log_topic
 from services.model import lqr_gains
 
@@ -118,7 +124,8 @@ def _deputy_summary(
         "max_along_track_error_last_orbit_m": m["max_along_track_error_last_orbit_m"],
         "max_radial_last_orbit_m": None,
         "final_radial_m": None,
-        # services.ground.scoring: None unless an LQR gain or a learned one is flown at the end
+        # services.ground.analysis.scoring: None unless an LQR gain or a learned one is flown at
+        # the end
         "gain_error_vs_true_optimum": m["gain_error"],
         "gain_error_vs_lqr": m["gain_error_vs_lqr"],
         "learned": m["learned"],
@@ -435,7 +442,8 @@ def write_report(
 
 
 def _outcome(data: RunData, monitor_counters: dict[str, int], gaps: RecordGaps) -> dict[str, Any]:
-    """How the run ended and what happened to its commands (``services.ground.outcome``)."""
+    """How the run ended and what happened to its commands
+    (``services.ground.analysis.outcome``)."""
     return outcome(
         final_seen=data.final_seen,
         sim_t=data.sim_t,

@@ -1,5 +1,5 @@
-"""Where the live view (``services.ground.live``) listens: ``--live [HOST:PORT]`` read and
-checked before anything is launched (its package there, its port free), and the warning an
+"""Where the live view (``services.ground.monitoring.live``) listens: ``--live [HOST:PORT]`` read
+and checked before anything is launched (its package there, its port free), and the warning an
 address beyond this machine draws."""
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.config import Deployment, Deputy
-from services.ground.rundata import truth_hill
+from services.ground.analysis.rundata import truth_hill
 from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
 
 log = logging.getLogger("ddvi.scoring")

@@ -9,11 +9,11 @@
 its hub from the folder's ``bus.json`` and, on a secure bus, the observer's credentials (a
 subscribe-only user) from its ``security/`` folder; a folder that holds credentials while its
 bus.json turns security off is refused (exit 2) unless ``--insecure`` says to connect without
-authentication anyway (``services.ground.credentials.find_run``); TOPICS (a topic pattern such as
-``ctrl/*/status``, or a full ``ddvi/<run>/...`` key expression) defaults to every topic; a
+authentication anyway (``services.ground.launch.credentials.find_run``); TOPICS (a topic pattern
+such as ``ctrl/*/status``, or a full ``ddvi/<run>/...`` key expression) defaults to every topic; a
 pattern that matches no topic of the topology is refused.
 ``--hub`` taps an insecure bus directly; ``--live`` serves the messages to Foxglove instead
-(``services.ground.live_tap``).  A sample that holds a batch prints one line per
+(``services.ground.monitoring.live_tap``).  A sample that holds a batch prints one line per
 message; one that does not decode prints why it is rejected.  The tap is a plain zenoh
 subscriber: it records nothing and keeps no state.
 """
@@ -34,10 +34,10 @@ import zenoh
 
 from services.bus import EPHEMERAL_LOOPBACK, BusSettings, error_text, open_session
 from services.bus.security import OBSERVER
-from services.ground import lifecycle
-from services.ground.credentials import RunNotFoundError, find_run
-from services.ground.live_address import LIVE_DEFAULT
-from services.ground.run_keys import run_keyexpr
+from services.ground.launch import lifecycle
+from services.ground.launch.credentials import RunNotFoundError, find_run
+from services.ground.monitoring.live_address import LIVE_DEFAULT
+from services.ground.monitoring.run_keys import run_keyexpr
 from services.interface import MessageError, decode, unpack_batch
 
 
@@ -137,7 +137,7 @@ def monitor_command(args: argparse.Namespace, out: Callable[[str], None] | None 
 def _monitor(args: argparse.Namespace, out: Callable[[str], None] | None) -> int:
     """What ``monitor_command`` does, its stop signals taken."""
     if getattr(args, "live", None) is not None:
-        from services.ground.live_tap import serve_live
+        from services.ground.monitoring.live_tap import serve_live
 
         return serve_live(args)
     emit = out or (lambda line: print(line, flush=True))

@@ -4,13 +4,13 @@
 message already); ``ddvi monitor --run R --live [HOST:PORT]`` from a tap on a running mission.
 ``LiveServer`` (``foxglove-sdk``, an optional dependency: ``live_address.INSTALL``)
 advertises one channel per topic of the run (``run_topics``), each with the JSON schema the
-recording gives it (``services.ground.recording``), and sends each message as the
+recording gives it (``services.ground.storage.recording``), and sends each message as the
 recording's JSON with its simulation time t as the message time.  The server's clock (the
 protocol's ``time`` capability, which Foxglove stamps received messages with) is the
 mission's simulation time, moved by the time master's clock messages.  Beside the bus
 topics it serves ``live/<sc>/gains`` (``live_gains_topic``), sent with each of a deputy's
 gains messages: the gains it flies and the optimal gains K*, L* of the truth's model
-(``services.ground.scoring.reference_gains``), each flattened, which Foxglove's message
+(``services.ground.analysis.scoring.reference_gains``), each flattened, which Foxglove's message
 paths index (they index one array level, and K is a matrix).
 
 The server never holds the caller up: a message no client subscribes to is not even encoded,
@@ -30,8 +30,8 @@ import orjson
 
 from services.bus import worth_saying
 from services.config import Deployment
-from services.ground.live_address import LiveAddress
-from services.ground.recording import (
+from services.ground.monitoring.live_address import LiveAddress
+from services.ground.storage.recording import (
     ALIVE_SCHEMA,
     REJECTED_SCHEMA,
     message_json_schema,
@@ -84,7 +84,7 @@ def run_topics(dep: Deployment) -> dict[str, str]:
 
 def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]]]:
     """Deputy -> (K*, L*) flattened, empty for a deputy whose truth has no optimal gains."""
-    from services.ground.scoring import reference_gains as optimal
+    from services.ground.analysis.scoring import reference_gains as optimal
 
     out: dict[str, tuple[list[float], list[float]]] = {}
     for d in dep.deputy:

@@ -1,7 +1,7 @@
 """How a run ended and what happened to its commands: the report's outcome, and its lines.
 
 ``outcome`` is pure (the counters in, a dict out): it is the ``outcome`` block of summary.json,
-which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.verdict``).
+which ``ddvi run``'s exit status is decided from (``services.ground.launch.lifecycle.verdict``).
 
     ended_by    "final clock" (the environment's, at the planned end), "early final clock"
                 (the environment ended the mission before it: a re-entry), "stopped" (no
@@ -17,13 +17,13 @@ which ``ddvi run``'s exit status is decided from (``services.ground.lifecycle.ve
                 controller flew the safe attitude (its navigation too old), lock-step steps
                 the mission paused for a silent controller or recorder (docs/health.md)
     refused     the messages the ground refused to believe, by publisher, topic and reason
-                (``services.ground.refusals``): a topic its publisher may not send, or a body
-                naming another deputy or service than its topic
+                (``services.ground.analysis.refusals``): a topic its publisher may not send, or a
+                body naming another deputy or service than its topic
     impossible  the counters a service claimed in its stats that cannot be true, by publisher,
-                counter and reason (``services.ground.claims``): never believed
+                counter and reason (``services.ground.analysis.claims``): never believed
     clipped_commands  {"total": n, "by_deputy": {deputy: n}}: commands the environment clipped
                 to the deputy's attitude limit (``deputy.attitude_limit``)
-    record      whether the record of the run is whole (``services.ground.record``)
+    record      whether the record of the run is whole (``services.ground.storage.record``)
     refused_by_number  {reason: n}: messages the ground recorded but kept out of the report
                 by their sequence number (``services.bus.SequenceGuard``: a duplicate, a stale
                 replay, a jump past any number its publisher reached): refused, never lost

@@ -115,7 +115,9 @@ class Claims:
     def __init__(
         self, dep: Deployment, run: str, dropped: Callable[[str], int] | None = None
     ) -> None:
-        from services.ground.live import run_topics  # the run's topics, as the live view's
+        from services.ground.monitoring.live import (
+            run_topics,  # the run's topics, as the live view's
+        )
 
         self.dropped = dropped or _no_drops
         self.fsw = dep.run.fsw_period

@@ -3,10 +3,10 @@
 A run writes its recording, its report and its logs into one folder, whose disk may fill (a
 small partition, a quota, another process) or fail.  The recording closes itself whole while
 its ``Recorder.room()`` is still left, so that the report keeps ``REPORT_ROOM``
-(``services.ground.recording``: ``RecordFile`` is its file); the report writes its timeseries
-and figures only into what is left beyond that room, and each of its files whole or not at all
-(``write_whole``): a file that did not fit is not there, and the report names it.  A failure is
-one line naming the file, why, and the space left (``failure``); a log file that cannot be
+(``services.ground.storage.recording``: ``RecordFile`` is its file); the report writes its
+timeseries and figures only into what is left beyond that room, and each of its files whole or not
+at all (``write_whole``): a file that did not fit is not there, and the report names it.  A failure
+is one line naming the file, why, and the space left (``failure``); a log file that cannot be
 written loses its lines, said once (``LogFile``).
 """
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from services.ground.rundata import RunData
+from services.ground.analysis.rundata import RunData
 
 
 def _f(v: Any, fmt: str) -> str:

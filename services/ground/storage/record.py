@@ -4,7 +4,7 @@ The record is whole when the recording holds the run from start to end and every
 service's stats say it sent is in it.  It is not when:
 
 - messages were published and never recorded (``unrecorded``: a service's believed stats against
-  what arrived from it, ``services.ground.claims``);
+  what arrived from it, ``services.ground.analysis.claims``);
 - samples were still queued when the recording closed (``queued_at_close``: the monitor records
   its backlog for a bounded time only);
 - the recording stopped before the run ended (``recording``: its disk was nearly full, or a
@@ -13,7 +13,7 @@ service's stats say it sent is in it.  It is not when:
 
 ``record_block`` is summary.json's ``outcome.record``; ``record_line`` says it on report.md's
 first lines; a completed run whose record is not whole exits 3, one whose recording stopped 1
-(``services.ground.lifecycle.verdict``).
+(``services.ground.launch.lifecycle.verdict``).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from services.ground.disk import size_text
+from services.ground.storage.disk import size_text
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ its last complete chunk; every message read is written into a new, complete MCAP
 (``recording.mcap``, which mcap's ``make_reader`` and Foxglove then open) and the original is
 kept beside it as ``recording.truncated.mcap``; on a disk with no room for the copy, the
 recording stays as it is, and the copy is not left in part.  The report
-(``services.ground.report``) is then written from the messages, as the monitor would have:
+(``services.ground.analysis.report``) is then written from the messages, as the monitor would have:
 duplicates and replays kept out, clocks from anyone but the environment not obeyed.  The
 deployment is the one attached to the recording.  Exit status 0 when a report was written, 1
 when the recording holds nothing usable or the report cannot be written, 2 when RUN is not a
@@ -34,9 +34,9 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from services.config import Deployment, DeploymentError, deployment_from_table, load_deployment
-from services.ground.disk import failure
-from services.ground.recording import CHUNK_SIZE, RECORDING
-from services.ground.report import ReportNotWrittenError
+from services.ground.analysis.report import ReportNotWrittenError
+from services.ground.storage.disk import failure
+from services.ground.storage.recording import CHUNK_SIZE, RECORDING
 
 log = logging.getLogger("ddvi.report")
 
@@ -143,7 +143,7 @@ def _deployment(records: Records, meta: dict[str, str]) -> Deployment:
 def recover(folder: Path) -> Recovered:
     """Write ``folder``'s report from its recording (repairing a recording cut short first).
     Raises FileNotFoundError without a recording, ValueError when it names no run."""
-    from services.ground.replay import replay  # the report's imports: only when needed
+    from services.ground.analysis.replay import replay  # the report's imports: only when needed
 
     path = folder / RECORDING
     if not path.is_file():
