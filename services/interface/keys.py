@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import re
 
-__all__ = ["PatternError", "check_pattern", "key_matches"]
+__all__ = ["PatternError", "check_pattern", "key_matches", "zenoh_spelling"]
 
 
 class PatternError(ValueError):
@@ -72,3 +72,13 @@ def key_matches(pattern: str, key: str) -> bool:
     """Whether ``key`` (a service name or a topic) is one of the keys ``pattern`` names.
     Raises PatternError for a pattern that is not a key expression."""
     return _compiled(pattern).fullmatch("/" + key) is not None
+
+
+def zenoh_spelling(pattern: str) -> str:
+    """``pattern`` as Zenoh itself takes it (a ``*`` inside a chunk written ``$*``), to
+    subscribe with.  Raises PatternError for a pattern that is not a key expression."""
+    check_pattern(pattern)
+    return "/".join(
+        c if c in ("*", "**") else c.replace("$*", "*").replace("*", "$*")
+        for c in pattern.split("/")
+    )

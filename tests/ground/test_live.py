@@ -29,7 +29,6 @@ from services.ground.monitoring.live import (
     LiveServer,
     live_gains_topic,
     reference_gains,
-    run_topics,
 )
 from services.ground.monitoring.live_address import LiveAddress, LiveError, parse_address
 from services.ground.storage.recording import (
@@ -145,7 +144,7 @@ def test_live_on_a_port_in_use_is_bad_input(
 
 def test_the_topics_of_a_run_are_the_topology_with_its_names() -> None:
     dep = load_deployment(str(ROOT / "deployments" / "rendezvous.toml"))
-    assert run_topics(dep) == TOPOLOGY_OF_SHORT
+    assert dep.topics() == TOPOLOGY_OF_SHORT
 
 
 def nav(t: float, seq: int = 0) -> Any:
@@ -479,7 +478,7 @@ def test_the_layout_plots_fields_the_live_view_serves() -> None:
     number, string or boolean field of its schema; each panel it places is configured."""
     layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
     dep = load_deployment(str(ROOT / "deployments" / "rendezvous.toml"))
-    schemas = {t: message_json_schema(SCHEMAS[s]) for t, s in run_topics(dep).items()}
+    schemas = {t: message_json_schema(SCHEMAS[s]) for t, s in dep.topics().items()}
     schemas |= {live_gains_topic(d.name): LIVE_GAINS_SCHEMA for d in dep.deputy}
     schemas |= {f"alive/{s}": ALIVE_SCHEMA for s in dep.services}
     paths = list(layout_paths(layout["configById"]))

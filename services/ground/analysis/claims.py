@@ -115,10 +115,6 @@ class Claims:
     def __init__(
         self, dep: Deployment, run: str, dropped: Callable[[str], int] | None = None
     ) -> None:
-        from services.ground.monitoring.live import (
-            run_topics,  # the run's topics, as the live view's
-        )
-
         self.dropped = dropped or _no_drops
         self.fsw = dep.run.fsw_period
         self.deputies = len(dep.deputy)
@@ -127,7 +123,7 @@ class Claims:
         # per service: (messages its keys may send at once, messages a simulated second),
         # each key as the receivers' RateBudget buckets it
         self.budgets: dict[str, tuple[float, float]] = {}
-        for topic in run_topics(dep):
+        for topic in dep.topics():  # the run's topics, as the live view's
             owner = publisher_of(topic)
             if owner is None:
                 continue

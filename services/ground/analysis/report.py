@@ -150,7 +150,7 @@ def _deputy_summary(
         if d.controller != "lqr":
             switches = _learned_switches(craft.gains)[1:]
             out["relearned_at_orbits"] = [t / data.period for t in switches]
-            # every return to the old gains after re-learning failed (Controller.learning_failed)
+            # every return to the old gains after re-learning failed (LearningCycle.learning_failed)
             out["relearning_abandoned_at_orbits"] = _switches(craft.gains, "fallback", data.period)
     return out
 

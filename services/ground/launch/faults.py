@@ -17,7 +17,7 @@ clock, which also proves the run is there).  The kinds:
                                     orbits: its filter propagates, its samples are not valid
     link --from PUB --to SUB [--topic T] [--delay S] [--jitter S] [--loss P] [--duplicate P]
          [--reorder P]              every service matching SUB impairs what it receives from
-                                    PUB (service-name globs; nav/deputy1 means nav-deputy1)
+                                    PUB (service-name patterns; nav/deputy1 means nav-deputy1)
                                     from now on, ahead of the deployment's [[link]]s
 
 RUN is the run folder ``ddvi run`` prints, or the run's name under ``--output`` (default
@@ -27,7 +27,7 @@ faults).  ``--hub`` names the hub of an insecure run that has no run folder here
 
 Before it sends anything the command checks the fault as the run's deployment would check the
 same fault, link or kill in its file (``services.config.validation``: a link's delay + jitter
-shorter than the mission, globs naming its services, a deputy of the run, values in range),
+shorter than the mission, patterns naming its services, a deputy of the run, values in range),
 against the copy in the run folder (``deployment.toml``); a run reached by ``--hub`` alone is
 checked by its services on receipt, with the same checks.
 
@@ -93,9 +93,13 @@ def add_fault_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         help="kill: a service (ctrl-<deputy>, nav-<deputy>); panel, bias, outage: a deputy; "
         "link: see --to",
     )
-    p.add_argument("--from", dest="publisher", help="link: publishing service(s), a glob")
-    p.add_argument("--to", dest="subscriber", help="link: subscribing service(s), a glob")
-    p.add_argument("--topic", default="*", help="link: topic glob (default: all but the clock)")
+    p.add_argument("--from", dest="publisher", help="link: publishing service(s), a pattern")
+    p.add_argument("--to", dest="subscriber", help="link: subscribing service(s), a pattern")
+    p.add_argument(
+        "--topic",
+        default="**",
+        help="link: topic pattern, a key expression (default: every topic but the clock)",
+    )
     for key in LINK_PARAMETERS:
         unit = "s" if key in ("delay", "jitter") else "probability"
         p.add_argument(f"--{key}", type=float, default=0.0, help=f"link: {key} ({unit})")
@@ -194,7 +198,7 @@ def locate_run(run: str, output: str, hub: str | None, user: str, insecure: bool
 
 
 def _target(args: argparse.Namespace) -> tuple[str, str]:
-    """The run and the fault's target, checked (a link's target: its subscriber glob)."""
+    """The run and the fault's target, checked (a link's target: its subscriber pattern)."""
     if args.kind == "link":
         if not args.publisher or not args.subscriber:
             raise UsageError("ddvi fault link: give --from PUBLISHER and --to SUBSCRIBER")
@@ -220,7 +224,7 @@ def _link(args: argparse.Namespace) -> Link:
 
 def _params(args: argparse.Namespace, target: str) -> tuple[dict[str, Any], str | None]:
     """The fault's params, each checked as far as it can be without the run's deployment, and
-    the service that acts on it (None: every service a link glob matches answers)."""
+    the service that acts on it (None: every service a link's pattern matches answers)."""
     if args.kind == "panel":
         try:
             check_panel(args.area_factor, args.stuck_angle)
@@ -291,7 +295,7 @@ def check_against(dep: Deployment, args: argparse.Namespace, target: str) -> Non
 
 
 def _link_answerers(session: zenoh.Session, run: str, target: str) -> set[str]:
-    """The running services a link fault for ``target`` (a subscriber glob) reaches, each of
+    """The running services a link fault for ``target`` (a subscriber pattern) reaches, each of
     which answers: those alive that match it, but the monitor (it records unimpaired)."""
     found: set[str] = set()
     sub = watch_alive(session, run, target, lambda name, alive: alive and found.add(name))
@@ -311,7 +315,7 @@ def _publish_and_wait(
     t: float,
 ) -> int | None:
     """Publish the fault at simulation time ``t`` and print the answer of every service that
-    acts on it (a link fault: each one its glob matches); its exit status (1 when one ignored
+    acts on it (a link fault: each one its pattern matches); its exit status (1 when one ignored
     or refused it, or did not answer), or None when no answer came within ``args.timeout``."""
     expected = _link_answerers(session, run, target) if args.kind == "link" else set()
     answers: queue.SimpleQueue = queue.SimpleQueue()

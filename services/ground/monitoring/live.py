@@ -3,7 +3,7 @@
 ``ddvi run --live [HOST:PORT]`` serves from the monitor (the process that receives every
 message already); ``ddvi monitor --run R --live [HOST:PORT]`` from a tap on a running mission.
 ``LiveServer`` (``foxglove-sdk``, an optional dependency: ``live_address.INSTALL``)
-advertises one channel per topic of the run (``run_topics``), each with the JSON schema the
+advertises one channel per topic of the run (``Deployment.topics``), each with the JSON schema the
 recording gives it (``services.ground.storage.recording``), and sends each message as the
 recording's JSON with its simulation time t as the message time.  The server's clock (the
 protocol's ``time`` capability, which Foxglove stamps received messages with) is the
@@ -72,14 +72,6 @@ def live_gains_topic(deputy: str) -> str:
 def _bus_schema(name: str) -> dict[str, Any]:
     """The recording's JSON schema of a bus message type, built once."""
     return message_json_schema(SCHEMAS[name])
-
-
-def run_topics(dep: Deployment) -> dict[str, str]:
-    """Every topic a run of ``dep`` may carry (``topics.TOPOLOGY``) and its schema."""
-    deputies = [d.name for d in dep.deputy]
-    return topics.concrete_topics(
-        {"craft": ["chief", *deputies], "sc": deputies, "service": [*dep.services, "launcher"]}
-    )
 
 
 def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]]]:
@@ -222,7 +214,7 @@ def live_server(
     ``liveliness``) and each deputy's gains against K*.  K* is solved on a thread of its own
     (a second of imports and Riccati solves, which must not hold the caller up): the live
     gains carry an empty K* until it is known."""
-    advertise = {t: (f"ddvi.{s}", _bus_schema(s)) for t, s in run_topics(dep).items()}
+    advertise = {t: (f"ddvi.{s}", _bus_schema(s)) for t, s in dep.topics().items()}
     for d in dep.deputy:
         advertise[live_gains_topic(d.name)] = ("ddvi.live_gains", LIVE_GAINS_SCHEMA)
     if liveliness:

@@ -8,6 +8,7 @@ import re
 import zenoh
 
 from services.interface import TOPOLOGY
+from services.interface.keys import PatternError, zenoh_spelling
 
 
 def topic_patterns() -> list[str]:
@@ -33,13 +34,14 @@ def run_keyexpr(run: str, pattern: str | None) -> str:
         if named != "**":
             run = named if run == "*" else run
         parts = (["**"] if named == "**" else []) + parts[2:]
-    topics = "/".join(parts) or "**"
     try:
+        topics = zenoh_spelling("/".join(parts) or "**")
         key = zenoh.KeyExpr(topics)
-    except zenoh.ZError:
+    except (PatternError, zenoh.ZError) as exc:
         raise ValueError(
-            f"{pattern!r} is not a key expression (segments separated by /, "
-            "* for one segment, ** for any number)"
+            f"{pattern!r} is not a key expression ({exc}; chunks separated by /, * for one "
+            "chunk or any characters within one, ** for any number: docs/deployments.md, "
+            '"Patterns")'
         ) from None
     known = topic_patterns()
     if not any(key.intersects(zenoh.KeyExpr(t)) for t in known):
