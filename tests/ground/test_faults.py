@@ -502,7 +502,7 @@ def test_link_faults_from_the_ground(start_mission: Callable[[str], Mission]) ->
         said = f"{ctrl}: fault link ctrl-*: refused at {ctrl} (link.publisher: 'nobody' "
         assert said in r.stdout, r.stdout
     r = mission.fault("link", "--from", "nav/ddvi", "--to", "ctrl/ddvi", "--delay", "120")
-    assert r.returncode == 0 and "ctrl-ddvi now receives * from nav-ddvi with delay 120" in (
+    assert r.returncode == 0 and "ctrl-ddvi now receives ** from nav-ddvi with delay 120" in (
         r.stdout
     ), r.stdout + r.stderr
     r = mission.fault("link", "--from", "ctrl-lqr", "--to", "environment", "--loss", "2")
@@ -558,7 +558,9 @@ def test_a_link_fault_obeys_the_deployment_and_stale_navigation_flies_the_safe_a
     )
     assert r.returncode == 2 and r.stderr.strip() == said and not r.stdout, r.stdout + r.stderr
     r = mission.fault_by_folder("link", "--from", "nav-lqr", "--to", "ctrl-lqr", "--delay", "50000")
-    applied = "ctrl-lqr: fault link ctrl-lqr: ctrl-lqr now receives * from nav-lqr with delay 50000"
+    applied = (
+        "ctrl-lqr: fault link ctrl-lqr: ctrl-lqr now receives ** from nav-lqr with delay 50000"
+    )
     assert r.returncode == 0 and applied in r.stdout, r.stdout + r.stderr
     rc, out, err = mission.finish()
     assert rc == 3 and "safe attitude flown by ctrl-lqr (" in err, err[-3000:]
