@@ -41,15 +41,21 @@ FLYING = b"services alive"
 alive: the environment, started with them, then flies."""
 
 
+def read_until(stream: IO[bytes], marker: bytes) -> list[bytes]:
+    """The lines of ``stream`` up to the first that holds ``marker`` (all of them, to its end,
+    if none does)."""
+    said = []
+    for line in stream:
+        said.append(line)
+        if marker in line:
+            break
+    return said
+
+
 def read_until_flying(stderr: IO[bytes]) -> list[bytes]:
     """The lines of a ``ddvi run``'s stderr up to the one saying its services are alive (all of
     them if it never says so): the caller keeps them, since what follows is read elsewhere."""
-    said = []
-    for line in stderr:
-        said.append(line)
-        if FLYING in line:
-            break
-    return said
+    return read_until(stderr, FLYING)
 
 
 During = Callable[[subprocess.Popen, Path], None]
@@ -91,9 +97,9 @@ def freeze(name: str, seconds: float, after: float = 1.0) -> During:
 
     def during(proc: subprocess.Popen, _folder: Path) -> None:
         part = psutil.Process(proc.pid) if name == "launcher" else service_process(proc, name)
-        time.sleep(after)
+        time.sleep(after)  # when the freeze starts: the callers give it in wall seconds of flight
         part.send_signal(signal.SIGSTOP)
-        time.sleep(seconds)
+        time.sleep(seconds)  # the freeze itself, what the callers test, is a length of time
         if part.is_running():
             part.send_signal(signal.SIGCONT)
 

@@ -18,6 +18,7 @@ from ddvi_core.systems import BUILTIN_SYSTEMS, System
 from services.config import deployment_from_table, read_table
 from services.flight.inprocess import run_in_process
 from services.model import duration
+from tests.support import wait_until
 
 
 def _explicit_rendezvous() -> System:
@@ -48,17 +49,29 @@ def test_iterations_to_refuses_a_bound_that_does_not_reach_the_tolerance() -> No
 def test_peak_memory_counts_a_descendant_once() -> None:
     """A grandchild holding 200 MB of its own, under a parent that holds nothing: the
     summed memory of the tree sees it, and once."""
-    code = "import numpy, time; a = numpy.ones(25_000_000); time.sleep(2.5)"
+    # the grandchild says when it holds the 200 MB, and holds them until its stdin (the
+    # parent's, this test's pipe) closes
+    code = (
+        "import numpy, sys; a = numpy.ones(25_000_000); print('held', flush=True); sys.stdin.read()"
+    )
     parent = subprocess.Popen(
         [
             sys.executable,
             "-c",
             f"import subprocess, sys; subprocess.run([sys.executable, '-c', {code!r}])",
-        ]
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
     )
-    memory = _PeakMemory(parent.pid)
-    parent.wait()
-    peak = memory.stop()
+    assert parent.stdin is not None and parent.stdout is not None
+    try:
+        assert parent.stdout.readline() == b"held\n"
+        memory = _PeakMemory(parent.pid)  # every read from now on sees all of it
+        assert wait_until(lambda: memory.peak > 0, timeout=30)  # the first read of the tree
+        peak = memory.stop()
+    finally:
+        parent.stdin.close()
+        parent.wait(timeout=30)
     assert 200e6 < peak < 400e6
 
 

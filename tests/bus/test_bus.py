@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import queue
-import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -68,11 +67,13 @@ def run() -> str:
 
 
 def connect(tx: Bus, inbox: Inbox, topic: str) -> None:
-    """Publish probes until the subscription has propagated, then empty the inbox."""
+    """Publish probes until the subscription has propagated, then one more, and take every
+    probe out of the inbox up to that last one (a publisher's messages arrive in order)."""
     assert wait_until(lambda: tx.publish(topic, "nav", nav_body(), 0.0) >= 0 and not inbox.empty())
-    time.sleep(0.05)
-    while not inbox.empty():
-        inbox.get_nowait()
+    last = tx.publish(topic, "nav", nav_body(), 0.0)
+    while inbox.get(timeout=TIMEOUT)[1].seq != last:
+        pass
+    assert inbox.empty()
 
 
 # --- settings -------------------------------------------------------------------------------

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import queue
 import stat
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -131,10 +130,34 @@ def router(tmp_path: Path) -> Iterator[tuple[str, dict[str, Credentials]]]:
         user=ROUTER,
         password=issued[ROUTER].password,
         dictionary=str(tmp_path / SECURITY_DIR / DICTIONARY),
-        access_control=access_control(RUN, USERS),
+        access_control=_with_observer_marker(access_control(RUN, USERS)),
     )
     with open_session(settings):
         yield hub, issued
+
+
+OBSERVER_MARKER = f"ddvi/{RUN}/marker/{OBSERVER}"
+"""A key the test's router lets the observer put on, and nothing else: the subscribe-only user
+has no topic of its own to say "my forgeries went before this" on."""
+
+
+def _with_observer_marker(acl: dict) -> dict:
+    """The run's access control with one rule more: the observer may put ``OBSERVER_MARKER``
+    (an allow rule adds a key; every other key stays denied by default)."""
+    acl["rules"].append(
+        {
+            "id": "observer marker",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["put"],
+            "key_exprs": [OBSERVER_MARKER],
+        }
+    )
+    acl["subjects"].append({"id": "observer marker", "usernames": [OBSERVER]})
+    acl["policies"].append(
+        {"id": "observer marker", "rules": ["observer marker"], "subjects": ["observer marker"]}
+    )
+    return acl
 
 
 def _client(hub: str, cred: Credentials | None) -> BusSettings:
@@ -191,12 +214,31 @@ def test_router_refuses_strangers_and_drops_puts_outside_a_users_topics(
             nav.liveliness().declare_token(p + "alive/ctrl-lqr"),
             nav.liveliness().declare_token(p + "alive/nav-lqr"),
         ]
-        ctrl.put(p + "cmd/lqr/att", genuine)  # after every forgery
-        assert got.get(timeout=5.0) == (p + "cmd/lqr/att", genuine)
-        time.sleep(0.5)  # a forgery let through would have arrived by now
-        while not got.empty():  # copies of the genuine command only
-            assert got.get_nowait() == (p + "cmd/lqr/att", genuine)
-        assert alive == [p + "alive/nav-lqr"]  # another's token is not declared
+        # each forger's marker, put after its forgeries on the same link: a forgery the router
+        # let through would reach the monitor before its sender's marker
+        after = encode(
+            "cmd",
+            {"sc": "lqr", "sigma": [0.0, 0.0, 0.2], "for_t": 120.0},
+            seq=1,
+            t=60.0,
+            src="ctrl-lqr",
+        )
+        puts = [
+            (nav, p + "nav/lqr/state", b"nav's own state, after its forgeries"),
+            (observer, OBSERVER_MARKER, b"the observer's marker, after its forgery"),
+            (ctrl, p + "cmd/lqr/att", after),  # ctrl-lqr's next genuine command
+        ]
+        for session, key, payload in puts:
+            session.put(key, payload)
+        markers = {(key, payload) for _, key, payload in puts}
+        heard: list[tuple[str, bytes]] = []
+        while not markers <= set(heard):
+            heard.append(got.get(timeout=5.0))
+        # nothing but the markers and late copies of the first genuine command
+        assert set(heard) - markers <= {(p + "cmd/lqr/att", genuine)}, heard
+        # nav's token for itself comes after its token for ctrl-lqr, which is not declared
+        assert wait_until(lambda: p + "alive/nav-lqr" in alive), alive
+        assert alive == [p + "alive/nav-lqr"]
         for token in tokens:
             token.undeclare()
         sub.undeclare()

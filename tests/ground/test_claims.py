@@ -13,22 +13,20 @@ import os
 import queue
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
 
 from benchmarks.flood import DEPLOYMENT
-from services.bus import open_session, zenoh_config
+from services.bus import open_session
 from services.bus.budget import BUDGET_BURST, BUDGET_SLACK
 from services.bus.security import OBSERVER, credentials_path, load_credentials
 from services.config import deployment_from_table
 from services.ground.analysis.claims import IN_FLIGHT, Claims
 from services.ground.storage.recording import Recorded, read_recording
 from services.interface import decode, encode, unpack_batch
-from tests.ground.test_security import _client, _wait_for_run
+from tests.ground.test_security import _client, _open, _wait_for_run
 
 ORBITS = 8.0
 ATTACK_T = 12_000.0  # s: the forgeries are put once the mission has flown this far
@@ -51,14 +49,7 @@ def _forge(out: Path, info: dict[str, Any]) -> dict[str, Any]:
     users = (OBSERVER, "nav-lqr", "ctrl-lqr")
     creds = {u: load_credentials(credentials_path(out, u)) for u in users}
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-    deadline = time.monotonic() + 60.0
-    while True:  # the router opens just after the run folder is written
-        try:
-            watch = zenoh.open(zenoh_config(_client(hub, creds[OBSERVER])))
-            break
-        except zenoh.ZError:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    watch = _open(hub, creds[OBSERVER])
     seen: dict[str, Any] = {}
     t = 0.0
     with (

@@ -11,20 +11,18 @@ import os
 import queue
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import zenoh
 
 from benchmarks.flood import DEPLOYMENT
-from services.bus import open_session, zenoh_config
+from services.bus import open_session
 from services.bus.security import OBSERVER, credentials_path, load_credentials
 from services.ground.storage.recording import read_recording
 from services.interface import decode, encode, unpack_batch
-from tests.ground.test_security import _client, _wait_for_run
+from tests.ground.test_security import _client, _open, _wait_for_run
 
 pytestmark = pytest.mark.integration
 
@@ -41,14 +39,7 @@ def _clip(out: Path, info: dict[str, Any]) -> int:
     hub, p = info["hub"], f"ddvi/{info['run']}/"
     watch_cred = load_credentials(credentials_path(out, OBSERVER))
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-    deadline = time.monotonic() + 60.0
-    while True:  # the router opens just after the run folder is written
-        try:
-            watch = zenoh.open(zenoh_config(_client(hub, watch_cred)))
-            break
-        except zenoh.ZError:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    watch = _open(hub, watch_cred)
     put, last_put, clipped = 0, -1e9, 0
     stolen = load_credentials(credentials_path(out, "ctrl-lqr"))
     with contextlib.closing(watch), open_session(_client(hub, stolen)) as ctrl:

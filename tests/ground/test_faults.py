@@ -11,7 +11,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,12 +21,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.bus import EPHEMERAL_LOOPBACK, BusSettings, open_session
+from services.bus import EPHEMERAL_LOOPBACK, BusSettings, zenoh_config
 from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment, resolve
 from services.flight.inprocess import run_in_process
 from services.ground.storage.recording import read_recording
 from services.interface import MAX_PAYLOAD, encode, schema_for_topic, topics
+from tests.support import wait_until
 
 # every test here starts a mission through `ddvi run` (or the `ddvi fault` command)
 pytestmark = pytest.mark.integration
@@ -62,6 +62,11 @@ INPUTS = {
 # about half a wall second after the first clock (gossip) and needs several rounds before this:
 # at 3.6 ms a 60 s step (measured), 10,000 s went by within a second
 STOP_AT = 40000.0
+# s of simulation time between the intruder's rounds. Every receiver budgets each key by its
+# simulated time (services.bus.budget): paced in simulated time, the garbage stays within the
+# budgets however fast or slow the mission flies (a flood would be dropped unread, uncounted).
+# A round puts 6 messages on each key: a status-rate key's budget refills 8 in 1200 s.
+ROUND_EVERY = 1200.0
 
 
 def _with_nan(payload: bytes) -> bytes:
@@ -112,7 +117,7 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(
 ) -> None:
     """An intruder on the bus puts random bytes, truncated, oversized, wrong-schema,
     NaN-carrying and replayed copies of real messages on every topic of a running mission,
-    several times a second.  Every service rejects and counts them and goes on: the mission
+    every 20 steps.  Every service rejects and counts them and goes on: the mission
     completes, no handler fails, and every command is bit-identical to the same mission run
     in one process with no bus."""
     mission = start_mission(GARBLED)
@@ -127,22 +132,16 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(
     rng = np.random.default_rng(7)
     sub = mission.session.declare_subscriber("ddvi/**", on_sample)
     try:
-        # every service's subscriptions reach this session by gossip: once it is linked to
-        # every service and the hub, give them a moment, so that each gets every garbage message
+        # every service's subscriptions reach this session by gossip: once this session knows
+        # each service's subscription to each of its inputs, each gets every garbage message
         mission.wait_for(0.0)
-        deadline = time.monotonic() + 10.0
-        while len(mission.session.info.peers_zid()) < len(INPUTS) + 1:
-            assert time.monotonic() < deadline, mission.session.info.peers_zid()
-            time.sleep(0.05)
-        time.sleep(0.5)
-        last_t = -1.0
-        while mission.launcher.poll() is None and mission.t < STOP_AT:
-            # a round a step at most: a stalled mission (a loaded machine) must not turn the
-            # garbage into a flood, which every receiver's budget drops unread (uncounted)
-            if mission.t <= last_t:
-                time.sleep(0.02)
-                continue
-            last_t = mission.t
+        assert wait_until(lambda: _inputs_known(mission), 30.0), _known(mission.session)
+        next_round = mission.t
+        while True:
+            mission.wait_for(next_round)
+            if mission.t >= STOP_AT:
+                break
+            next_round = mission.t + ROUND_EVERY
             with lock:
                 targets = dict(seen)
             for key, valid in targets.items():
@@ -154,7 +153,6 @@ def test_garbage_on_every_topic_changes_nothing_the_craft_do(
                         key, payload, congestion_control=zenoh.CongestionControl.BLOCK
                     )
                 rounds[key] = rounds.get(key, 0) + 1
-            time.sleep(0.1)
     finally:
         sub.undeclare()
     rc, out, err = mission.finish()
@@ -212,6 +210,40 @@ max_restarts = 1
 """
 
 
+def _known(session: zenoh.Session) -> dict[str, dict[str, set[str]]]:
+    """What ``session`` knows of the other peers, from its own admin space: by kind
+    (``subscriber``, ``token``), each key expression declared and the peers that declared it."""
+    known: dict[str, dict[str, set[str]]] = {"subscriber": {}, "token": {}}
+    for kind, keys in known.items():
+        prefix = f"@/{session.zid()}/peer/{kind}/"
+        for reply in session.get(prefix + "**"):
+            if reply.ok is not None:
+                peers = json.loads(reply.ok.payload.to_string())["peers"]
+                keys[str(reply.ok.key_expr).removeprefix(prefix)] = set(peers)
+    return known
+
+
+def _inputs_known(mission: Mission) -> bool:
+    """Whether the mission's session knows every service's subscription to each of its
+    INPUTS (the service by its liveliness token's peer): a put there then reaches it."""
+    known = _known(mission.session)
+    prefix = f"ddvi/{mission.run}/"
+    peer_of = {
+        key.removeprefix(prefix + "alive/"): peer
+        for key, peers in known["token"].items()
+        for peer in peers
+    }
+    return all(
+        name in peer_of
+        and any(
+            peer_of[name] in peers and zenoh.KeyExpr(key).intersects(zenoh.KeyExpr(prefix + i))
+            for key, peers in known["subscriber"].items()
+        )
+        for name, inputs in INPUTS.items()
+        for i in inputs
+    )
+
+
 def _check_rejections(services: dict[str, dict[str, int]], rounds: dict[str, int]) -> None:
     """Every bad message a service received is counted, once, by its reason (``rounds``: key
     -> how many times each kind of garbage went on it)."""
@@ -254,8 +286,11 @@ class Mission:
         self.run = ""
         self.t = -1.0
         self._stack = contextlib.ExitStack()
-        settings = BusSettings(listen=[EPHEMERAL_LOOPBACK], connect=[self.hub])
-        session = self.session = self._stack.enter_context(open_session(settings))
+        config = zenoh_config(BusSettings(listen=[EPHEMERAL_LOOPBACK], connect=[self.hub]))
+        # its own admin space readable: what it knows of the services' subscriptions (_known)
+        config.insert_json5("adminspace", '{"enabled": true, "permissions": {"read": true}}')
+        session = self.session = zenoh.open(config)
+        self._stack.callback(session.close)  # an open session hangs the interpreter at exit
         sub = session.declare_subscriber("ddvi/*/clock", self._on_clock)
         self._stack.callback(sub.undeclare)
 
@@ -265,11 +300,11 @@ class Mission:
             self.t = max(self.t, float(msgpack.unpackb(sample.payload.to_bytes())["t"]))
 
     def wait_for(self, t: float, timeout: float = 60.0) -> None:
-        deadline = time.monotonic() + timeout
-        while self.t < t:
+        """Until the mission's clock reaches ``t`` s (the launcher still running)."""
+        wait_until(lambda: self.t >= t or self.launcher.poll() is not None, timeout)
+        if self.t < t:
             assert self.launcher.poll() is None, self.launcher.communicate()[1].decode()[-3000:]
-            assert time.monotonic() < deadline, f"simulation time {self.t} < {t}"
-            time.sleep(0.05)
+            raise AssertionError(f"simulation time {self.t} < {t}")
 
     def kill(self, service: str) -> None:
         """What ``ddvi fault RUN kill SERVICE`` sends, put at once (no CLI start-up)."""

@@ -11,15 +11,13 @@ import json
 import queue
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import zenoh
 
-from services.bus import open_session, zenoh_config
+from services.bus import open_session
 from services.bus.security import OBSERVER, credentials_path, load_credentials
 from services.ground.storage.recording import Recorded
 from services.interface import decode, encode, unpack_batch
@@ -30,6 +28,7 @@ from tests.ground.test_security import (
     _finish,
     _flight,
     _launch,
+    _open,
     _wait_for_run,
 )
 
@@ -77,14 +76,7 @@ def _attack(out: Path, info: dict[str, Any]) -> int:
         u: load_credentials(credentials_path(out, u)) for u in (OBSERVER, "ctrl-lqr", "nav-lqr")
     }
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-    deadline = time.monotonic() + 60.0
-    while True:  # the router opens just after the run folder is written
-        try:
-            watch = zenoh.open(zenoh_config(_client(hub, creds[OBSERVER])))
-            break
-        except zenoh.ZError:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    watch = _open(hub, creds[OBSERVER])
     next_seq: dict[str, int] = {}
     boots: dict[str, int] = {}
     t = 0.0

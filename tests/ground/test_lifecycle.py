@@ -5,6 +5,7 @@ Exit statuses (``services.ground.launch.lifecycle``): 128 + N for signal N, 1 fo
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -14,8 +15,9 @@ from pathlib import Path
 
 import psutil
 import pytest
+from mcap.reader import NonSeekingReader
 
-from tests.support import FLYING, read_until_flying, wait_until
+from tests.support import FLYING, read_until, read_until_flying, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -62,9 +64,19 @@ class Run:
         assert self.proc.stderr is not None
         self.said = read_until_flying(self.proc.stderr)
         assert FLYING in self.said[-1], self.finish(5)[1]
-        time.sleep(2.0)
+        assert wait_until(self.flown, timeout=60), "no clock after t = 0 recorded"
         self.pids |= {p.pid for p in self.services()}
         assert len(self.pids) == 4  # monitor, nav-lqr, ctrl-lqr, environment
+
+    def flown(self) -> bool:
+        """Whether the recording holds a clock past the start: the mission has flown a step
+        and the monitor recorded it (its complete chunks, read as a stream)."""
+        for path in self.runs.glob("*/recording.mcap"):
+            with path.open("rb") as f, contextlib.suppress(Exception):  # its open tail
+                for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+                    if channel.topic == "clock" and message.log_time > 0:  # simulation time
+                        return True
+        return False
 
     def finish(self, timeout: float = 90) -> tuple[int, str]:
         _, err = self.proc.communicate(timeout=timeout)
@@ -112,7 +124,8 @@ def test_a_second_sigint_while_stopping_with_sigint_inherited_ignored(tmp_path: 
     run = Run(tmp_path, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     run.wait_flying()
     run.proc.send_signal(signal.SIGINT)
-    time.sleep(0.3)
+    assert run.proc.stderr is not None
+    run.said += read_until(run.proc.stderr, b"SIGINT: stopping every service")  # it took it
     run.proc.send_signal(signal.SIGINT)
     code, err = run.finish()
     assert code == 130, err[-3000:]
@@ -145,9 +158,12 @@ def test_a_service_crashing_at_start_up_is_reported_at_once(tmp_path: Path) -> N
     started = time.monotonic()
     run = Run(tmp_path, env=env)
     pids: set[int] = set()
-    while run.proc.poll() is None:
-        pids |= {p.pid for p in run.services()}
-        time.sleep(0.02)
+
+    def ended() -> bool:  # the launcher's children, as they come and go, until it ends
+        pids.update(p.pid for p in run.services())
+        return run.proc.poll() is not None
+
+    assert wait_until(ended, timeout=120)
     code, err = run.finish()
     took = time.monotonic() - started
     assert code == 1, err[-3000:]

@@ -379,7 +379,12 @@ def _publish_part(monitor: Monitor, steps: int) -> Mission:
 
 def test_sigterm_mid_run_gives_a_closed_recording_and_a_partial_report(monitor: Monitor) -> None:
     mission = _publish_part(monitor, 60)
-    time.sleep(0.3)
+    # a marker behind the mission on the same session: once the monitor says it refused it,
+    # it has taken in every message before it (recorded, not necessarily flushed yet)
+    key = f"ddvi/{monitor.run}/marker"
+    block = zenoh.CongestionControl.BLOCK
+    monitor.session.put(key, b"\xc1 after the mission", congestion_control=block)
+    assert wait_until(lambda: f"rejected {key} (malformed" in monitor.log(), TIMEOUT), monitor.log()
     monitor.proc.send_signal(signal.SIGTERM)
     assert monitor.wait() == 0, monitor.log()
     data, _, complete = recorded_topics(monitor.out / "recording.mcap")
@@ -435,9 +440,13 @@ def test_a_plain_zenoh_subscriber_decodes_bus_messages_with_msgpack_alone(
                 ),
                 TIMEOUT,
             )
-            time.sleep(0.05)
-            first = received.get_nowait()
-            received.queue.clear()
+            # one more behind the probes: take every probe out up to it, keep the first
+            last = bus.publish("nav/alpha/state", "nav", body, 12.5)
+            first = received.get(timeout=TIMEOUT)
+            taken = first
+            while msgpack.unpackb(taken[1])["seq"] != last:
+                taken = received.get(timeout=TIMEOUT)
+            assert received.empty()
             received.put(first)
             with bus.batch():
                 for t in (20.0, 30.0, 40.0):
@@ -477,10 +486,13 @@ def test_monitor_command_prints_one_line_per_message(
     thread.start()
     with Bus(session, run_name, "environment") as bus:
         clock = {"step": 1, "dt": 10.0, "fsw": True, "mode": "lockstep", "final": False}
-        while thread.is_alive():
+
+        def published_until_heard() -> bool:  # until it has printed its 3 lines and returned
             bus.publish("clock", "clock", clock, 10.0)
             session.put(f"ddvi/{run_name}/junk", b"\x00\x01")
-            time.sleep(0.02)
+            return not thread.is_alive()
+
+        assert wait_until(published_until_heard, 3 * TIMEOUT)
     thread.join(TIMEOUT)
     assert result == [0] and len(lines) == 3
     assert any(f"ddvi/{run_name}/clock clock t=10.000 src=environment" in ln for ln in lines)

@@ -3,6 +3,7 @@ mcap's standard reader opens the repaired file and ``ddvi report`` writes the re
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import warnings
@@ -127,12 +128,11 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
     chunk."""
     import subprocess
     import sys
-    import time
 
     import psutil
     from mcap.reader import NonSeekingReader
 
-    from tests.support import FLYING, read_until_flying
+    from tests.support import FLYING, read_until_flying, wait_until
 
     dep = tmp_path / "kill9.toml"
     dep.write_text(LONG)
@@ -153,7 +153,21 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
     assert launcher.stderr is not None
     said = read_until_flying(launcher.stderr)
     assert FLYING in said[-1], said
-    time.sleep(3.0)
+
+    def streamed(path: Path) -> int:
+        """Messages a stream reader takes from ``path`` (complete chunks only)."""
+        n = 0
+        with path.open("rb") as f, contextlib.suppress(Exception):  # its open tail
+            for _ in NonSeekingReader(f).iter_messages(log_time_order=False):
+                n += 1
+        return n
+
+    def flushed() -> int:
+        """Messages in complete chunks of the run's recording so far (0 before it is made)."""
+        return sum(streamed(path) for path in (tmp_path / "runs").glob(f"*/{RECORDING}"))
+
+    # the monitor has flushed more than 1000 messages: what the recovery must give back
+    assert wait_until(lambda: flushed() > 1000, timeout=60), flushed()
     (monitor,) = [p for p in kids() if "services.ground.monitoring.monitor" in p.cmdline()]
     monitor.kill()
     _, rest = launcher.communicate(timeout=120)
@@ -161,16 +175,10 @@ def test_kill_9_of_the_monitor_mid_run_leaves_a_report_and_a_readable_recording(
     assert launcher.returncode == 1, err
     assert "monitor exited with status -9" in err and "report recovered" in err, err
     (folder,) = (tmp_path / "runs").iterdir()
-    with (folder / TRUNCATED).open("rb") as f:  # the cut file, read by mcap as a stream
-        streamed = 0
-        try:
-            for _ in NonSeekingReader(f).iter_messages(log_time_order=False):
-                streamed += 1
-        except Exception:  # its cut tail
-            pass
     recovered = _standard_count(folder / RECORDING)
     summary = json.loads((folder / "summary.json").read_text())
-    assert recovered == streamed == summary["recovered"]["messages"] > 1000
+    # the cut file, read by mcap as a stream
+    assert recovered == streamed(folder / TRUNCATED) == summary["recovered"]["messages"] > 1000
     assert summary["completed"] is False and summary["outcome"]["ended_by"] == "stopped"
     assert f"({recovered} messages)" in err
 

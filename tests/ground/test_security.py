@@ -8,7 +8,6 @@ import os
 import queue
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ from services.bus.security import OBSERVER, Credentials, credentials_path, load_
 from services.ground.storage.recording import Recorded, read_recording
 from services.interface import decode, encode, unpack_batch
 from services.interface.topics import may_publish
+from tests.support import wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -70,13 +70,16 @@ def _wait_for_run(
     root: Path, timeout: float = 60.0, security: bool = True
 ) -> tuple[Path, dict[str, Any]]:
     """The run folder under ``root`` once its bus description (and credentials) are there."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+
+    def written() -> bool:
         found = list(root.glob("*/bus.json"))
-        if found and (not security or (found[0].parent / "security" / "users.txt").is_file()):
-            return found[0].parent, json.loads(found[0].read_text())
-        time.sleep(0.05)
-    raise AssertionError(f"no run folder under {root}")
+        return bool(found) and (
+            not security or (found[0].parent / "security" / "users.txt").is_file()
+        )
+
+    assert wait_until(written, timeout), f"no run folder under {root}"
+    (found,) = root.glob("*/bus.json")
+    return found.parent, json.loads(found.read_text())
 
 
 def _client(hub: str, cred: Credentials | None) -> BusSettings:
@@ -85,6 +88,22 @@ def _client(hub: str, cred: Credentials | None) -> BusSettings:
     return BusSettings(
         mode="client", listen=[], connect=[hub], user=cred.user, password=cred.password
     )
+
+
+def _open(hub: str, cred: Credentials, timeout: float = 60.0) -> zenoh.Session:
+    """A session of ``cred``'s user on ``hub``, once its router takes it (the router opens
+    just after the run folder is written)."""
+    opened: list[zenoh.Session] = []
+
+    def connected() -> bool:
+        try:
+            opened.append(zenoh.open(zenoh_config(_client(hub, cred))))
+        except zenoh.ZError:
+            return False
+        return True
+
+    assert wait_until(connected, timeout), f"{hub} never took {cred.user}"
+    return opened[0]
 
 
 def _forgeries(run: str, seen: dict[str, bytes], t: float) -> list[tuple[str, bytes]]:
@@ -138,14 +157,7 @@ def _attack(out: Path, info: dict[str, Any], proc: subprocess.Popen) -> dict[str
         u: load_credentials(credentials_path(out, u)) for u in ("nav-lqr", "ctrl-ddvi", "monitor")
     }
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-    deadline = time.monotonic() + 60.0
-    while True:  # the router opens just after the run folder is written
-        try:
-            watch = zenoh.open(zenoh_config(_client(hub, observer)))
-            break
-        except zenoh.ZError:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    watch = _open(hub, observer)
     put = {"stolen": 0, "peer": 0, "rounds": 0}
     try:
         sub = watch.declare_subscriber(
@@ -163,16 +175,21 @@ def _attack(out: Path, info: dict[str, Any], proc: subprocess.Popen) -> dict[str
             open_session(_client(hub, stolen["monitor"])) as mon,
         ):
             seen: dict[str, bytes] = {}
-            t, final = 0.0, False
+            t, final, attacked_at = 0.0, False, 0.0
             while not final and proc.poll() is None:
-                while not inbox.empty():
-                    key, payload = inbox.get_nowait()
-                    for part in unpack_batch(payload) or (payload,):
-                        seen.setdefault(key, part)
-                        if key.endswith("/clock"):
-                            msg = decode(part)
-                            t, final = max(t, msg.t), final or msg.body["final"]
-                if t > 0 and not final:
+                try:  # the run's next message
+                    key, payload = inbox.get(timeout=1.0)
+                except queue.Empty:
+                    continue
+                for part in unpack_batch(payload) or (payload,):
+                    seen.setdefault(key, part)
+                    if key.endswith("/clock"):
+                        msg = decode(part)
+                        t, final = max(t, msg.t), final or msg.body["final"]
+                # a round each time the mission's clock moves on: as the mission flies, at a
+                # rate its receivers' budgets (by simulated time) take, however fast it flies
+                if t > attacked_at and not final:
+                    attacked_at = t
                     for key, payload in _forgeries(run, seen, t):
                         for user, session in (
                             ("nav-lqr", nav),
@@ -185,7 +202,6 @@ def _attack(out: Path, info: dict[str, Any], proc: subprocess.Popen) -> dict[str
                         stranger.put(key, payload)
                         put["peer"] += 1
                     put["rounds"] += 1
-                time.sleep(0.02)
             assert list(stranger.info.routers_zid()) == [] and list(stranger.info.peers_zid()) == []
         sub.undeclare()
     finally:
@@ -325,13 +341,16 @@ def test_an_open_bus_is_said_and_its_receivers_still_refuse_foreign_and_far_time
         sub = anyone.declare_subscriber(p + "clock", lambda s: clocks.put(s.payload.to_bytes()))
         clocks.get(timeout=60)  # the mission flies: the environment is there to hear them
         while proc.poll() is None and sent < 500:
+            try:  # a round each time the mission's clock moves on
+                clocks.get(timeout=1.0)
+            except queue.Empty:
+                continue
             for sc in DEPUTIES:
                 body = {"sc": sc, "sigma": np.array([0.0, 0.0, 0.9]), "for_t": 1e12}
                 anyone.put(p + f"cmd/{sc}/att", encode("cmd", body, seq=0, t=60.0, src="intruder"))
                 far = encode("cmd", body, seq=10**6, t=60.0, src=f"ctrl-{sc}")
                 anyone.put(p + f"cmd/{sc}/att", far)
                 sent += 1
-            time.sleep(0.02)
         sub.undeclare()
     assert proc.wait(timeout=150) in (0, 3)
     assert "bus.security = false: the bus is open" in log_path.read_text()
