@@ -1,6 +1,7 @@
-"""Deployments: the typed deployment (``deployment``), its semantic checks (``validation``; the
-physical range of every number: ``ranges``) and its files (``files``); the strict TOML reader
-they use is ``ddvi_core.tables``.  A deployment is data: reading one starts nothing.
+"""Deployments: the typed deployment (``deployment``), its semantic checks (``validation``;
+what its patterns name: ``wiring``; the physical range of every number: ``ranges``) and its
+files (``files``); the strict TOML reader they use is ``ddvi_core.tables``.  A deployment is
+data: reading one starts nothing.
 
 May import: ``ddvi_core``, ``services.interface`` (its topics and the links' declaration).
 Not the bus (so not zenoh), models, processes or tools.
@@ -15,14 +16,8 @@ from services.config.deployment import (
     controller_label,
 )
 from services.config.files import load_deployment, read_table, resolve, write_deployment
-from services.config.validation import (
-    check_fault,
-    check_kill,
-    check_link_fault,
-    check_panel,
-    deployment_from_table,
-    link_from_params,
-)
+from services.config.validation import check_fault, check_panel, deployment_from_table
+from services.config.wiring import check_kill, check_link_fault, link_from_params
 
 __all__ = [
     "Deployment",

@@ -162,7 +162,7 @@ def mission_seconds(dep: Deployment) -> float:
 
 def check_link_latency(where: str, link: LinkSpec, duration: float) -> None:
     """A link's delay + jitter shorter than the mission (``duration`` s): a [[link]], or a link
-    impaired at run time (``services.config.validation.check_link_fault``)."""
+    impaired at run time (``services.config.wiring.check_link_fault``)."""
     latency = link.delay + link.jitter
     if not latency < duration:
         raise DeploymentError(

@@ -19,6 +19,7 @@ import queue
 import time
 from collections.abc import Callable
 
+from services.flight.control_loop import newest_sample_time
 from services.flight.environment_model import CommandsInForce
 from services.flight.health import HANG_MARGIN, HangError, Waiting
 from services.flight.inputs import LOST, OBSERVED, PRESENCE
@@ -80,7 +81,7 @@ class CommandGate:
 
     def expected_step(self, sc: str, t_k: float) -> float:
         """The newest command step that can be in force from t_k on (negative: none yet)."""
-        return math.floor((t_k - self.cmd_delay[sc]) / self.fsw + 1e-9) * self.fsw
+        return newest_sample_time(t_k, self.cmd_delay[sc], self.fsw)
 
     def take(self, t_k: float, wait: bool) -> None:
         """Apply the newest command of each deputy that its link has delivered by t_k; in

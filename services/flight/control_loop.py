@@ -52,6 +52,12 @@ def input_delay(dep: Any, sc: str) -> float:
     )
 
 
+def stale_limit(run: Any) -> float:
+    """How old past the sample it should have a step's newest navigation may be before the
+    step flies the safe attitude, s: run.nav_stale_limit, or two flight-software steps."""
+    return run.nav_stale_limit or 2.0 * run.fsw_period
+
+
 @dataclass
 class Sample:
     """A navigation sample paired with its exostate: measured at t (s), the estimate x (4,),
@@ -138,7 +144,7 @@ class ControlLoop:
     def __init__(self, ctrl: Controller, run: Any, delay: float, joining: bool = False) -> None:
         self.ctrl, self.sc, self.delay = ctrl, ctrl.sc, delay
         self.fsw, self.period = run.fsw_period, ctrl.deputy.navigation.period
-        self.stale = StaleNavigation(run.nav_stale_limit or 2.0 * run.fsw_period)
+        self.stale = StaleNavigation(stale_limit(run))
         self.pairs = SamplePairs(("nav", "exo"))  # nav: (x, altitude, z, valid); exo: v
         self.ready: dict[float, Sample] = {}  # paired, not yet collected
         self.last: Sample | None = None  # the newest collected

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from services.flight.control_loop import stale_limit
 from services.flight.health import HangError, Waiting
 
 NAV_AWAY_GRACE = 1.0
@@ -49,7 +50,7 @@ class StepGate:
         self.lockstep = run.mode == "lockstep"
         self.patience = (run.command_deadline, run.hang_timeout)
         self.waiting: tuple[float, Waiting] | None = None  # the step waited for, and how long
-        self.stale_limit = run.nav_stale_limit or 2.0 * run.fsw_period
+        self.stale_limit = stale_limit(run)
 
     # -- what has been accounted for ----------------------------------------------------------
 
