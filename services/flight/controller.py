@@ -24,17 +24,15 @@ rate budget, counts as that step's sample lost.
 
 from __future__ import annotations
 
-import queue
 import sys
 from typing import Any
 
 from services.flight.control import Controller
 from services.flight.control_loop import ControlLoop, Said, Step, input_delay
-from services.flight.health import HangError
-from services.flight.inputs import LOST, OBSERVED, PRESENCE, Inputs
+from services.flight.host import Listen, ServiceHost, Watch
+from services.flight.inputs import LOST, OBSERVED, PRESENCE
 from services.flight.runtime import ServiceContext, run_service
 from services.flight.step_gate import StepGate
-from services.flight.streams import FinalClock
 from services.interface import (
     CLOCK,
     EXOSTATE,
@@ -47,42 +45,39 @@ from services.model import IN_PLANE
 
 
 def main(ctx: ServiceContext) -> int:
-    sc = ctx.name.removeprefix("ctrl-")
-    ctrl = Controller(ctx.deployment, sc)
-    inputs = Inputs(ctx)
-    inputs.listen(nav_state_topic(sc), "nav", accounted=True)
-    inputs.listen(EXOSTATE, "exo", accounted=True)
-    inputs.listen(CLOCK, "clock")
-    inputs.watch(f"nav-{sc}")
-    try:
-        ctx.ready()
-        return ControllerService(ctx, ctrl, inputs.inbox).run()
-    finally:
-        inputs.close()
+    ctrl = Controller(ctx.deployment, ctx.name.removeprefix("ctrl-"))
+    return ServiceHost(ctx).react(ControllerService(ctx, ctrl))
 
 
 class ControllerService:
-    """The controller's host: feeds its ``ControlLoop`` what the links deliver, lets a step
-    fly once its clock and inputs are accounted for (``StepGate``), and publishes the
-    commands, gains, status, log lines and counters.
+    """The controller as a service (run by ``ServiceHost``): feeds its ``ControlLoop`` what
+    the links deliver, lets a step fly once its clock and inputs are accounted for
+    (``StepGate``), and publishes the commands, gains, status, log lines and counters.
 
     Parameters
     ----------
     ctx : the service's context (its bus, deployment, stop request).
     ctrl : the control law this service flies.
-    inbox : where the subscriptions put ``(topic or tag, message)``.
     """
 
-    def __init__(self, ctx: ServiceContext, ctrl: Controller, inbox: queue.SimpleQueue) -> None:
-        self.ctx, self.ctrl, self.inbox = ctx, ctrl, inbox
+    ready_at_start = True
+    batched = False  # a command leaves as soon as its step has flown
+
+    def __init__(self, ctx: ServiceContext, ctrl: Controller) -> None:
+        self.ctx, self.ctrl = ctx, ctrl
         self.sc = sc = ctrl.sc
         run = ctx.deployment.run
+        self.inputs = (
+            Listen(nav_state_topic(sc), "nav", accounted=True),
+            Listen(EXOSTATE, "exo", accounted=True),
+            Listen(CLOCK, "clock"),
+            Watch(f"nav-{sc}"),
+        )
         self.status_every = run.status_every
         self.fsw = run.fsw_period
         self.loop = ControlLoop(ctrl, run, input_delay(ctx.deployment, sc), ctx.joining)
         self.gate = StepGate(run, sc, self.loop.expected_sample)
         self.counters = self.loop.counters
-        self.final = FinalClock()
 
     # -- publishing ---------------------------------------------------------------------------
 
@@ -121,44 +116,37 @@ class ControllerService:
             t,
         )
 
-    # -- the main loop ------------------------------------------------------------------------
+    # -- as the service host runs it (services.flight.host.Reactive) ---------------------------
 
-    def run(self) -> int:
-        """Take messages until the mission is over or a stop is requested; returns 0, or
-        HANG_STATUS when lock-step hung on this controller's inputs (``HangError``)."""
+    def poll(self) -> float:
+        # while navigation is away, a step waits for its grace to run out, not for a message
+        return 0.5 if self.gate.nav_gone is None else 0.1
+
+    def start(self) -> None:
         if not self.ctx.joining:
             self.publish_gains(0.0)
-        status = 0
-        try:
-            while not self.ctx.stop.is_set():
-                try:
-                    kind, msg = self.inbox.get(timeout=0.5 if self.gate.nav_gone is None else 0.1)
-                except queue.Empty:
-                    if self.final.grace_over():
-                        break  # the last samples were lost on their links
-                    self.advance()  # a step may wait for navigation's grace to run out
-                    self.check_waiting()
-                    if self.loop.done(self.final.t):
-                        break
-                    continue
-                self.take(kind, msg)
-                if self.inbox.empty():  # what pump() just released is queued: take it in first
-                    self.advance()
-                    self.check_waiting()
-                if self.loop.done(self.final.t):
-                    break
-        except HangError as exc:
-            status = self.ctx.give_up(exc)
+
+    def settle(self, final_t: float | None) -> None:
+        """Fly what the loop can (``ControlLoop.advance``), publish it, and in lock-step have
+        the step whose clock has come but not its sample wait (``StepGate.check``)."""
+        for item in self.loop.advance(self.gate.ready, final_t):
+            if isinstance(item, Said):
+                self.ctx.log(item.level, item.text, item.t)
+                if item.gains:
+                    self.publish_gains(item.t)
+            else:
+                self.publish_step(item)
+        T = self.loop.next_tick
+        self.gate.check(T, lambda said: self.ctx.log("warning", said, T))
+
+    def done(self, final_t: float | None) -> bool:
+        return self.loop.done(final_t)
+
+    def finish(self) -> tuple[float, dict[str, int]]:
         t_end = self.loop.next_tick - self.fsw
         self.publish_gains(t_end)
         self.publish_status(t_end)
-        self.ctx.publish_stats(t_end, self.counters)
-        return status
-
-    def check_waiting(self) -> None:
-        """Lock-step: the step whose clock has come but not its sample waits (StepGate.check)."""
-        T = self.loop.next_tick
-        self.gate.check(T, lambda said: self.ctx.log("warning", said, T))
+        return t_end, self.counters
 
     def take(self, kind: str, msg: Any) -> None:
         """One inbox entry (``services.flight.inputs``): navigation's presence, a sample
@@ -172,23 +160,12 @@ class ControllerService:
         elif msg.schema == "clock":
             self.gate.clock(msg.t)
             self.ctx.bus.pump(msg.t)  # release what the links held until now
-            self.final.on_clock(msg)
         elif msg.schema == "exo":
             self.loop.exo(msg.t, msg.body["v"])
         else:
             b = msg.body
             x, z = (b[k][list(IN_PLANE)] for k in ("x_hill", "z_hill"))
             self.loop.nav(msg.t, x, b["altitude"], z, bool(b["valid"]))
-
-    def advance(self) -> None:
-        """Run what the loop can (``ControlLoop.advance``) and publish it."""
-        for item in self.loop.advance(self.gate.ready, self.final.t):
-            if isinstance(item, Said):
-                self.ctx.log(item.level, item.text, item.t)
-                if item.gains:
-                    self.publish_gains(item.t)
-            else:
-                self.publish_step(item)
 
     def publish_step(self, step: Step) -> None:
         """A step's log line and gains if it learned, its command, the gains' beacon while

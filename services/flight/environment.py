@@ -31,8 +31,8 @@ from services.bus import wait_for_alive
 from services.config import Fault, check_fault
 from services.flight.command_gate import PANEL, RECORDED_TAG, RECORDER_PRESENCE, CommandGate
 from services.flight.environment_model import EnvironmentModel
-from services.flight.health import HangError
-from services.flight.inputs import PRESENCE, Inputs
+from services.flight.host import Listen, ServiceHost, Watch
+from services.flight.inputs import PRESENCE
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext, run_service
 from services.interface import CLOCK, EXOSTATE, RECORDED, Message, command_topic, truth_topic
@@ -42,72 +42,39 @@ from services.model import ReentryError, Truth, duration, on_grid, open_truth
 def main(ctx: ServiceContext) -> int:
     truth = open_truth(ctx.deployment)
     try:
-        return _serve(ctx, truth)
+        return ServiceHost(ctx).drive(EnvironmentService(ctx, truth))
     finally:
         truth.close()
 
 
-def _serve(ctx: ServiceContext, truth: Truth) -> int:
-    inputs = Inputs(ctx)
-    # every command that reaches this service is also observed after its link has delivered,
-    # held or dropped it: the lock-step wait ends when the command it waits for is accounted for
-    inputs.listen(command_topic("*"), "cmd", accounted=True)  # every deputy's
-    inputs.listen(PANEL, "fault")
-    inputs.listen(RECORDED, "recorded", tag=RECORDED_TAG)
-    try:
-        return _fly(ctx, truth, inputs)
-    finally:
-        inputs.close()
-
-
-def _fly(ctx: ServiceContext, truth: Truth, inputs: Inputs) -> int:
-    """Once every service is alive, fly the mission with the controllers and the recorder
-    that are there (their liveliness watched from then on)."""
-    dep, run = ctx.deployment, ctx.deployment.run
-    deputies = [d.name for d in dep.deputy]
-    ctx.ready()
-    others = [s for s in dep.services if s != ctx.name]
-    alive = wait_for_alive(ctx.bus.session, ctx.run, others, run.startup_timeout)
-    if set(others) - alive:
-        ctx.log(
-            "error",
-            f"services not alive after {run.startup_timeout} s: {sorted(set(others) - alive)}",
-        )
-        return 1
-
-    present = {sc for sc in deputies if f"ctrl-{sc}" in alive}  # controllers to wait for
-    recorder = RecorderLead(run.fsw_period, present=RECORDER in alive)
-    inputs.watch("ctrl-*", PRESENCE)
-    inputs.watch(RECORDER, RECORDER_PRESENCE)
-    return EnvironmentService(ctx, truth, inputs.inbox, present, recorder).run()
-
-
 class EnvironmentService:
-    """The environment's host: propagates its ``EnvironmentModel`` one flight-software step at
-    a time, with each deputy's command in force (its ``CommandGate``), and publishes truth,
-    exostate and clock at every sample.
+    """The environment as a service (driven by ``ServiceHost``): once every service is alive,
+    propagates its ``EnvironmentModel`` one flight-software step at a time, with each deputy's
+    command in force (its ``CommandGate``), and publishes truth, exostate and clock at every
+    sample.
 
     Parameters
     ----------
     ctx : the service's context (its bus, deployment, stop request).
     truth : the truth model every craft is propagated with.
-    inbox : where the subscriptions put ``(topic or tag, message)``: commands, commands
-        observed by the link layer, panel faults, controllers' presence.
-    present : the deputies whose controller is alive (waited for in lock-step).
-    recorder : how far the mission may run ahead of the monitor's recording.
     """
 
-    def __init__(
-        self,
-        ctx: ServiceContext,
-        truth: Truth,
-        inbox: queue.SimpleQueue,
-        present: set[str],
-        recorder: RecorderLead,
-    ) -> None:
+    ready_at_start = True
+
+    def __init__(self, ctx: ServiceContext, truth: Truth) -> None:
         self.ctx = ctx
         dep = self.dep = ctx.deployment
         self.run_cfg = run = dep.run
+        # every command that reaches this service is also observed after its link has
+        # delivered, held or dropped it: the lock-step wait ends when the command it waits for
+        # is accounted for
+        self.inputs = (
+            Listen(command_topic("*"), "cmd", accounted=True),  # every deputy's
+            Listen(PANEL, "fault"),
+            Listen(RECORDED, "recorded", tag=RECORDED_TAG),
+            Watch("ctrl-*", PRESENCE),
+            Watch(RECORDER, RECORDER_PRESENCE),
+        )
         self.model = EnvironmentModel(dep, truth)
         self.names = self.model.names
         self.dt, self.fsw, self.t_end = run.nav_period, run.fsw_period, duration(dep)
@@ -117,11 +84,32 @@ class EnvironmentService:
             paused_steps=0,
             recorder_waits=0,
         )
-        self.commands = CommandGate(
-            ctx, self.model.commands, inbox, present, self.counters, self.on_fault, recorder
-        )
         self.wall0 = time.monotonic()
         self.step = 0  # samples published so far (the clock's step)
+        self.t_k = 0.0  # the step being flown
+        self.completed = False
+
+    def fly(self, inbox: queue.SimpleQueue) -> int:
+        """Once every service is alive, fly the mission with the controllers and the recorder
+        that are there (their liveliness watched from then on); returns 0 if the mission
+        completed, 1 if a service never came, 3 if it ended early."""
+        dep, run = self.dep, self.run_cfg
+        others = [s for s in dep.services if s != self.ctx.name]
+        alive = wait_for_alive(self.ctx.bus.session, self.ctx.run, others, run.startup_timeout)
+        if set(others) - alive:
+            missing = sorted(set(others) - alive)
+            self.ctx.log("error", f"services not alive after {run.startup_timeout} s: {missing}")
+            return 1
+        present = {d.name for d in dep.deputy if f"ctrl-{d.name}" in alive}  # waited for
+        recorder = RecorderLead(run.fsw_period, present=RECORDER in alive)
+        self.commands = CommandGate(
+            self.ctx, self.model.commands, inbox, present, self.counters, self.on_fault, recorder
+        )
+        self.wall0 = time.monotonic()
+        return self.run()
+
+    def finish(self) -> tuple[float, dict[str, int]]:
+        return self.t_k, {**self.counters, "completed": int(self.completed)}
 
     # -- the step loop ------------------------------------------------------------------------
 
@@ -133,12 +121,7 @@ class EnvironmentService:
         self.publish_sample(0.0, state, model.attitudes(state[None])[0], final=self.t_end <= 0)
         t_k = 0.0
         while t_k < self.t_end - 1e-6 and not self.ctx.stop.is_set():
-            try:
-                self.commands.take(t_k, wait=run.mode == "lockstep")
-            except HangError as exc:
-                status = self.ctx.give_up(exc)
-                self.ctx.publish_stats(t_k, {**counters, "completed": 0})
-                return status
+            self.commands.take(t_k, wait=run.mode == "lockstep")  # HangError: the host gives up
             t_next = t_k + self.fsw
             try:
                 samples, traj, said = model.step(t_k)
@@ -157,12 +140,11 @@ class EnvironmentService:
                     self.step += 1
                     final = abs(t - self.t_end) < 1e-6
                     self.publish_sample(float(t), traj[k], sigma_BN[k], final=final)
-            t_k = t_next
+            t_k = self.t_k = t_next
             if counters["steps"] % run.status_every == 0:
                 self.ctx.publish_stats(t_k, counters)
-        completed = t_k >= self.t_end - 1e-6
-        self.ctx.publish_stats(t_k, {**counters, "completed": int(completed)})
-        return 0 if completed else 3
+        self.completed = t_k >= self.t_end - 1e-6
+        return 0 if self.completed else 3
 
     # -- publishing ---------------------------------------------------------------------------
 

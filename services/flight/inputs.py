@@ -1,5 +1,7 @@
 """What a flight service takes in from the bus: its inputs, declared against the topology, and
-the liveliness it watches, all delivered to one inbox its main loop reads in order.
+the liveliness it watches, all delivered to one inbox its main loop reads in order.  The
+service host (``services.flight.host``) builds it from a component's declared ``Listen`` and
+``Watch`` entries:
 
     inputs = Inputs(ctx)
     inputs.listen(nav_state_topic(sc), "nav", accounted=True)   # + (OBSERVED, msg), (LOST, topic)

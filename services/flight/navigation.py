@@ -14,16 +14,15 @@ Outputs: nav/<deputy>/state (nav): the deputy's state relative to the chief,
 
 from __future__ import annotations
 
-import queue
 import sys
 
 import numpy as np
 
 from services.config import DeploymentError, Fault, check_fault
-from services.flight.inputs import Inputs
+from services.flight.host import Listen, ServiceHost
 from services.flight.relative_navigation import RelativeNavigation
 from services.flight.runtime import ServiceContext, run_service
-from services.flight.streams import FinalClock, SamplePairs
+from services.flight.streams import SamplePairs
 from services.interface import CLOCK, Message, fault_topic, nav_state_topic, truth_topic
 from services.model import on_grid, orbit_period
 
@@ -32,7 +31,7 @@ BIAS_KEYS = ("px", "py", "pz", "vx", "vy", "vz")
 
 
 def main(ctx: ServiceContext) -> int:
-    return NavigationService(ctx).run()
+    return ServiceHost(ctx).react(NavigationService(ctx))
 
 
 class NavigationService:
@@ -51,19 +50,19 @@ class NavigationService:
         self.deputy = ctx.deployment.deputy_named(sc)
         self.navigation = RelativeNavigation(ctx.deployment, self.deputy)
         self.period = self.deputy.navigation.period
-        self.inputs = Inputs(ctx)
         # only the two craft it needs (a swarm's other deputies would multiply the traffic); the
         # two subscriptions interleave arbitrarily, and samples are paired by time
-        for craft in ("chief", sc):
-            self.inputs.listen(truth_topic(craft), "truth")
-        self.inputs.listen(CLOCK, "clock")
-        for kind in ("bias", "outage"):
-            self.inputs.listen(fault_topic(kind), "fault")
-        self.inbox = self.inputs.inbox
+        self.inputs = (
+            Listen(truth_topic("chief"), "truth"),
+            Listen(truth_topic(sc), "truth"),
+            Listen(CLOCK, "clock"),
+            Listen(fault_topic("bias"), "fault"),
+            Listen(fault_topic("outage"), "fault"),
+        )
+        # restarted into the running mission, it is alive once it publishes again
+        self.ready_at_start = not ctx.joining
         if ctx.joining:
             ctx.log("warning", "restarted into the running mission: publishing from the next truth")
-        else:
-            ctx.ready()
         self.pairs = SamplePairs(("chief", sc))
         self.counters = {
             "published": 0,
@@ -73,37 +72,34 @@ class NavigationService:
             "outages": 0,
             "outage_samples": 0,
         }
-        self.final = FinalClock()
         self.last_t = -1.0  # last published sample
         self.last_pair = -1.0  # last sample for which both truths arrived
 
-    def run(self) -> int:
-        """Take messages until the final sample is paired or a stop is requested; returns 0."""
-        while not self.ctx.stop.is_set():
-            try:
-                topic, msg = self.inbox.get(timeout=0.5)
-            except queue.Empty:
-                if self.final.grace_over():
-                    break  # the last truth never came (a lost message): nothing more will
-                continue
-            # what one pass over the queue publishes goes out as one zenoh sample per topic:
-            # the environment's step arrives at once, so a step's samples leave together
-            with self.ctx.bus.batch():
-                while True:
-                    self.handle(topic, msg)
-                    try:
-                        topic, msg = self.inbox.get_nowait()
-                    except queue.Empty:
-                        break
-            if self.final.t is not None and self.last_pair >= self.final.t - 1e-6:
-                break
-        self.ctx.publish_stats(self.last_t, self.counters)
-        return 0
+    # -- as the service host runs it (services.flight.host.Reactive) ---------------------------
 
-    def handle(self, topic: str, msg: Message) -> None:
+    # the environment's step arrives at once: what one pass over the inbox publishes leaves
+    # as one zenoh sample per topic, so a step's samples leave together
+    batched = True
+
+    def poll(self) -> float:
+        return 0.5
+
+    def start(self) -> None:
+        pass  # nothing to publish before the first truth
+
+    def settle(self, final_t: float | None) -> None:
+        pass  # it publishes as the truths arrive
+
+    def done(self, final_t: float | None) -> bool:
+        return final_t is not None and self.last_pair >= final_t - 1e-6
+
+    def finish(self) -> tuple[float, dict[str, int]]:
+        return self.last_t, self.counters
+
+    def take(self, topic: str, msg: Message) -> None:
         if msg.schema == "clock":
-            self.final.on_clock(msg)
-        elif msg.schema == "fault":
+            return  # the host keeps the final clock
+        if msg.schema == "fault":
             self.on_fault(topic.removeprefix("fault/"), msg)
         elif msg.body["sc"] in ("chief", self.sc):
             self.on_truth(msg)

@@ -18,6 +18,8 @@ import itertools
 import re
 from dataclasses import dataclass
 
+from services.interface.keys import PatternError, check_pattern, key_matches
+
 CLOCK = "clock"
 """The environment's simulation clock (``final = true`` ends the mission)."""
 
@@ -83,32 +85,26 @@ TOPIC_SCHEMAS: tuple[tuple[str, str], ...] = (
     ("cmd/*/att", "cmd"),
     ("ctrl/*/gains", "gains"),
     ("ctrl/*/status", "status"),
-    ("fault/**", "fault"),
+    ("fault/*", "fault"),
     ("recorded", "recorded"),
     ("stats/*", "stats"),
     ("log/*", "log"),
 )
 """Which schema each topic (below ``ddvi/<run>/``) carries (docs/design.md, "The bus"): ``*`` is
-one key chunk, ``**`` the rest of the key."""
+one key chunk (``services.interface.keys``)."""
 
 
 @functools.lru_cache(maxsize=4096)  # a run has a few dozen topics; garbage may add more
 def schema_for_topic(topic: str) -> str | None:
-    """The schema a topic carries (``TOPIC_SCHEMAS``), None for a topic outside the table."""
-    chunks = topic.split("/")
-    for pattern, schema in TOPIC_SCHEMAS:
-        want = pattern.split("/")
-        if want[-1] == "**":  # the rest of the key, at least one chunk
-            want, chunks_ = want[:-1], chunks[: len(want) - 1]
-            if len(chunks) < len(want) + 1:
-                continue
-        else:
-            chunks_ = chunks
-        if len(want) == len(chunks_) and all(
-            w in ("*", c) for w, c in zip(want, chunks_, strict=True)
-        ):
-            return schema
-    return None
+    """The schema a topic carries (``TOPIC_SCHEMAS``), None for a topic outside the table or
+    one that is not a key (a wildcard, an empty chunk)."""
+    try:
+        check_pattern(topic)
+    except PatternError:
+        return None
+    if "*" in topic:
+        return None
+    return next((schema for pattern, schema in TOPIC_SCHEMAS if key_matches(pattern, topic)), None)
 
 
 # ---- the topology: who publishes and who subscribes each topic -------------------------------

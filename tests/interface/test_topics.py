@@ -62,7 +62,8 @@ def test_the_topic_functions_cover_every_schema_and_alive_carries_none() -> None
     assert schema_for_topic(alive_topic("monitor")) is None  # a liveliness key, no payload
     assert schema_for_topic("nav/deputy1") is None
     assert schema_for_topic("fault") is None
-    assert schema_for_topic("fault/a/b") == "fault"
+    assert schema_for_topic("fault/a/b") is None  # a fault topic is fault/<kind>
+    assert schema_for_topic("cmd/*/att") is None  # a pattern is no topic
 
 
 def test_every_route_carries_the_schema_of_its_topic() -> None:
