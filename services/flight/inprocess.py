@@ -180,68 +180,92 @@ def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> d
     (truth, exostate), ``nav-<deputy>`` (states, bias, noise, filter), ``ctrl-<deputy>``
     (controller and learning), and ``steps``, the flight-software steps.  Raises
     ``services.model.ReentryError`` if a craft re-enters."""
-    clock = time.perf_counter
-    names = [d.name for d in dep.deputy]
-    spent = dict.fromkeys(
-        ["environment", *(f"{p}-{n}" for n in names for p in ("nav", "ctrl"))], 0.0
-    )
-    fsw, t_end = dep.run.fsw_period, duration(dep)
-    flights = [DeputyFlight(dep, n) for n in names]
-    truth_t: list[float] = []
-    states: list[np.ndarray] = []
-
-    def publish(t: float, X: np.ndarray) -> None:
-        t0 = clock()
-        v, _ = env.exostate(t)
-        spent["environment"] += clock() - t0
-        truth_t.append(t)
-        states.append(X)
-        for i, flight in enumerate(flights):
-            t0 = clock()
-            flight.measure(t, X[0], X[i + 1], v)
-            spent[f"nav-{flight.name}"] += clock() - t0
-
-    def fly_controllers(t_k: float, final_t: float | None) -> None:
-        for flight in flights:
-            t0 = clock()
-            flight.fly(t_k, final_t)
-            spent[f"ctrl-{flight.name}"] += clock() - t0
-
+    mission = LockStepMission(dep)
     truth = open_truth(dep)
     try:
-        env = EnvironmentModel(dep, truth)
-        publish(0.0, truth.state)
-        t_k = 0.0
-        while t_k < t_end - 1e-6:
-            fly_controllers(t_k, None)
-            t0 = clock()
-            expected = {f.name: newest_sample_time(t_k, f.cmd_delay, fsw) for f in flights}
-            for flight in flights:
-                for for_t, sigma in flight.cmd_link.receive(t_k):
-                    env.commands.deliver(flight.name, for_t, sigma, t_k, expected[flight.name])
-            env.commands.count_missing(expected)
-            samples, traj, _ = env.step(t_k)
-            spent["environment"] += clock() - t0
-            for k, t in enumerate(samples):
-                publish(float(t), traj[k])
-            t_k += fsw
-        fly_controllers(t_k, t_k)  # the final clock: the last steps, on what came by then
+        mission.fly(EnvironmentModel(dep, truth))
     finally:
         truth.close()
     if timing is not None:
-        timing.update(spent, steps=env.counters["steps"])
-    X = np.array(states)
-    environment = dict(env.counters)
-    for key in ("dropped", "delayed"):  # its links' from every controller, as its bus counts
-        environment[key] = sum(f.cmd_link.counters[key] for f in flights)
-    out: dict[str, dict] = {}
-    for i, flight in enumerate(flights):
-        rec = flight.record()
-        rec.update(truth_t=np.array(truth_t), chief_rv=X[:, 0], rv=X[:, i + 1])
-        rec["links"] = {
-            key: flight.nav_link.counters[key] + flight.exo_link.counters[key]
-            for key in ("dropped", "delayed")
-        }
-        rec["environment"] = environment
-        out[flight.name] = rec
-    return out
+        timing.update(mission.spent, steps=mission.env.counters["steps"])
+    return mission.records()
+
+
+class LockStepMission:
+    """The mission's flight-software steps in the order lock-step gives the services, and
+    what each service's share of the work cost (``spent``, wall seconds)."""
+
+    def __init__(self, dep: Deployment) -> None:
+        self.fsw, self.t_end = dep.run.fsw_period, duration(dep)
+        self.flights = [DeputyFlight(dep, d.name) for d in dep.deputy]
+        services = [
+            "environment",
+            *(f"{p}-{f.name}" for f in self.flights for p in ("nav", "ctrl")),
+        ]
+        self.spent = dict.fromkeys(services, 0.0)
+        self.truth_t: list[float] = []
+        self.states: list[np.ndarray] = []  # every craft's inertial state (1 + N, 6) a sample
+
+    def fly(self, env: EnvironmentModel) -> None:
+        """Fly ``env`` and the deputies to the end of the mission."""
+        self.env = env
+        self.publish(0.0, env.truth.state)
+        t_k = 0.0
+        while t_k < self.t_end - 1e-6:
+            self.fly_controllers(t_k, None)
+            t0 = time.perf_counter()
+            self.deliver_commands(t_k)
+            samples, traj, _ = env.step(t_k)
+            self.spent["environment"] += time.perf_counter() - t0
+            for k, t in enumerate(samples):
+                self.publish(float(t), traj[k])
+            t_k += self.fsw
+        self.fly_controllers(t_k, t_k)  # the final clock: the last steps, on what came by then
+
+    def publish(self, t: float, X: np.ndarray) -> None:
+        """The sample at t of every craft (X (1 + N, 6)): the exostate, and each deputy's
+        measurement."""
+        t0 = time.perf_counter()
+        v, _ = self.env.exostate(t)
+        self.spent["environment"] += time.perf_counter() - t0
+        self.truth_t.append(t)
+        self.states.append(X)
+        for i, flight in enumerate(self.flights):
+            t0 = time.perf_counter()
+            flight.measure(t, X[0], X[i + 1], v)
+            self.spent[f"nav-{flight.name}"] += time.perf_counter() - t0
+
+    def fly_controllers(self, t_k: float, final_t: float | None) -> None:
+        """Each controller's steps up to t_k, on what its links delivered by then."""
+        for flight in self.flights:
+            t0 = time.perf_counter()
+            flight.fly(t_k, final_t)
+            self.spent[f"ctrl-{flight.name}"] += time.perf_counter() - t0
+
+    def deliver_commands(self, t_k: float) -> None:
+        """The commands the environment's links delivered by t_k, put in force, and the ones
+        its step waited for and never came counted missing."""
+        commands = self.env.commands
+        expected = {f.name: newest_sample_time(t_k, f.cmd_delay, self.fsw) for f in self.flights}
+        for flight in self.flights:
+            for for_t, sigma in flight.cmd_link.receive(t_k):
+                commands.deliver(flight.name, for_t, sigma, t_k, expected[flight.name])
+        commands.count_missing(expected)
+
+    def records(self) -> dict[str, dict]:
+        """Each deputy's record (see ``run_in_process``)."""
+        X = np.array(self.states)
+        environment = dict(self.env.counters)
+        for key in ("dropped", "delayed"):  # its links' from every controller, as its bus counts
+            environment[key] = sum(f.cmd_link.counters[key] for f in self.flights)
+        out: dict[str, dict] = {}
+        for i, flight in enumerate(self.flights):
+            rec = flight.record()
+            rec.update(truth_t=np.array(self.truth_t), chief_rv=X[:, 0], rv=X[:, i + 1])
+            rec["links"] = {
+                key: flight.nav_link.counters[key] + flight.exo_link.counters[key]
+                for key in ("dropped", "delayed")
+            }
+            rec["environment"] = environment
+            out[flight.name] = rec
+        return out
