@@ -145,10 +145,15 @@ def plot(kind: str, rows: list[dict[str, Any]], path: Path) -> None:
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     for i, label in enumerate(dict.fromkeys(_label(kind, r) for r in rows)):
         mine, color = [r for r in rows if _label(kind, r) == label], f"C{i % 10}"
-        final = [(r[x], r["final_along_track_error_m"]) for r in mine if r["completed"]]
+        # a log axis has no place for 0 (a nominal LQR's gain error): only positive points
+        final = [
+            (r[x], r["final_along_track_error_m"])
+            for r in mine
+            if r["completed"] and r["final_along_track_error_m"] > 0
+        ]
         if final:
             ax1.semilogy(*zip(*final, strict=True), "o-", color=color, label=label)
-        scored = [(r[x], r["gain_error"]) for r in mine if r["gain_error"] is not None]
+        scored = [(r[x], r["gain_error"]) for r in mine if (r["gain_error"] or 0.0) > 0]
         if scored:
             ax2.semilogy(*zip(*scored, strict=True), "o-", color=color, label=label)
         failed = [r[x] for r in mine if r["controller"] != "lqr" and not r["learned"]]
@@ -164,7 +169,8 @@ def plot(kind: str, rows: list[dict[str, Any]], path: Path) -> None:
         if kind == "noise" and positive:
             ax.set_xscale("symlog", linthresh=positive[0])
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
