@@ -33,11 +33,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ddvi_core.convergence import TRUST, budget_report, euler_limit_of_modes
+from ddvi_core.convergence import TRUST, euler_limit_of_modes, meets_tolerance, unconverged_message
+
+if TYPE_CHECKING:  # the settings' module imports this one
+    from ddvi_core.value_iteration import IterationSettings
 
 __all__ = [
     "GROWTH",
@@ -47,6 +52,7 @@ __all__ = [
     "continuation_loop",
     "gain_error",
     "linearisation",
+    "riccati_flow",
 ]
 
 GROWTH = 10.0
@@ -77,6 +83,16 @@ def basis_images(riccati_map: RiccatiMap, n: int | None = None) -> Images:
         Hs.append(H)
         Ks.append(KE)
     return np.array(Hs), np.array(Ks)
+
+
+def riccati_flow(
+    riccati_map: RiccatiMap, Q_s: NDArray, R_s: NDArray, P: NDArray
+) -> tuple[NDArray, NDArray]:
+    """(F(P) (n, n), K (m, n)) at P (n, n): the flow H(P) + Q - K^T R K, symmetrised against
+    round-off, and the gain K = K(P), from the maps."""
+    H, K = riccati_map(P)
+    F = H + Q_s - K.T @ R_s @ K
+    return (F + F.T) * 0.5, K
 
 
 def linearisation(images: Images, R_s: NDArray, K: NDArray) -> NDArray:
@@ -131,97 +147,136 @@ def _cone_message(times: int, eps: float) -> str:
     )
 
 
+@dataclass(frozen=True)
+class _Continuation:
+    """Where the implicit steps stand: the iterate P (n, n), the bound B_r's index r, the step
+    eps (None until the first after a start from P0 is chosen) and that ``first`` step, the
+    steps the safeguard rejected, and its cone rejections in a row at the first step's length
+    or shorter (``cone_streak``)."""
+
+    P: NDArray
+    r: int = 0
+    eps: float | None = None
+    first: float = math.inf
+    rejected: int = 0
+    cone_streak: int = 0
+
+
+def _with_step(
+    state: _Continuation, modes: NDArray, gain: float, P_norm: float, residual: float
+) -> _Continuation:
+    """``state`` with this iteration's step: on a start from P0 :func:`_first_step` of M's
+    ``modes`` (t,), and while a mode mu grows no longer than 1 / (2 Re mu), so that I / eps - M
+    keeps its eigenvalues in the right half-plane."""
+    if state.eps is None:
+        first = _first_step(modes, gain, P_norm, residual)
+        state = replace(state, eps=first, first=first)
+    growing = float(np.max(modes.real)) if modes.size else 0.0
+    if growing > 0:
+        return replace(state, eps=min(state.eps, 0.5 / growing))
+    return state
+
+
+def _implicit_step(M: NDArray, F: NDArray, eps: float) -> NDArray:
+    """X (n, n) solving (I / eps - M) X = F on the coefficients of symmetric matrices (M (t, t)
+    from :func:`linearisation`, F (n, n) the flow); NaN when that system is singular."""
+    n = F.shape[0]
+    rows, cols = np.triu_indices(n)
+    try:
+        return _symmetric(np.linalg.solve(np.eye(rows.size) / eps - M, F[rows, cols]), n)
+    except np.linalg.LinAlgError:
+        return np.full((n, n), np.nan)
+
+
+def _outside(P: NDArray, radius: float, psd_tol: float) -> str:
+    """ "bound" when P (n, n) is finite and |P|_F > radius, "cone" when it is not finite or has
+    an eigenvalue below -psd_tol |P|, else ""."""
+    size = float(np.linalg.norm(P))
+    if math.isfinite(size) and size > radius:
+        return "bound"
+    if not math.isfinite(size) or np.linalg.eigvalsh(P)[0] < -psd_tol * size:
+        return "cone"
+    return ""
+
+
+def _restarted_from(state: _Continuation, P0_s: NDArray) -> _Continuation:
+    """``state`` started again from P0_s (n, n) in the next bound, its first step to choose."""
+    return replace(state, P=P0_s.copy(), r=state.r + 1, eps=None, cone_streak=0)
+
+
+def _shortened(state: _Continuation) -> _Continuation:
+    """``state`` after the safeguard rejected its step for leaving the cone: SHRINK times the
+    step, and the streak grows while the step is no longer than the first."""
+    streak = state.cone_streak + 1 if state.eps <= state.first else 0
+    return replace(state, eps=state.eps * SHRINK, rejected=state.rejected + 1, cone_streak=streak)
+
+
+def _advanced(state: _Continuation, P_new: NDArray, change: float, P_norm: float) -> _Continuation:
+    """``state`` moved to P_new (n, n), a change of norm ``change`` from an iterate of norm
+    ``P_norm``: the next step aims at a change of STRIDE |P|, growing by at most GROWTH and
+    shrinking by at most SHRINK."""
+    ratio = STRIDE * max(P_norm, 1e-300) / change if change > 0 else GROWTH
+    eps = state.eps * min(GROWTH, max(ratio, SHRINK))
+    return replace(state, P=P_new, eps=eps, cone_streak=0)
+
+
 def continuation_loop(
     riccati_map: RiccatiMap,
     Q_s: NDArray,
     R_s: NDArray,
     P0_s: NDArray,
-    gain: float,
-    bounds: Callable[[int], float],
-    tol: float,
-    max_iterations: int,
-    rule: str = "relative",
-    psd_tol: float = 1e-6,
-    max_psd_resets: int = 3,
+    settings: IterationSettings,
 ) -> LoopResult:
     """Value iteration by implicit steps (module docstring) from P0_s (n, n), in scaled units.
 
-    ``gain``: the first step after each start from P0, as a fraction of forward Euler's
-    stability limit.  ``rule``: "relative" stops when :func:`gain_error` <= tol, "residual"
-    when |F(P)| < tol max(1, |P|).  A rejected step counts as an iteration.  Returns the tuple
-    of :func:`ddvi_core.value_iteration.value_iteration_loop`; ``history`` holds |P_k+1 - P_k|.
+    ``settings`` (:class:`ddvi_core.value_iteration.IterationSettings`): the step's ``gain`` is
+    the first step after each start from P0, as a fraction of forward Euler's stability limit;
+    ``rule`` "relative" stops when :func:`gain_error` <= tol, "residual" when |F(P)| <
+    tol max(1, |P|); ``psd_tol`` and ``max_psd_resets`` as in value iteration.  A rejected step
+    counts as an iteration.  Returns the tuple of
+    :func:`ddvi_core.value_iteration.value_iteration_loop`; ``history`` holds |P_k+1 - P_k|.
     """
     n = Q_s.shape[0]
-    rows, cols = np.triu_indices(n)
-    identity = np.eye(rows.size)
     images = basis_images(riccati_map, n)
-    P = P0_s.copy()
+    state = _Continuation(P0_s.copy())
     K = np.zeros((R_s.shape[0], n))
-    r = rejected = cone_streak = 0
-    eps: float | None = None
-    first = math.inf
-    history, errors = [], []
+    history: list[float] = []
+    errors: list[float] = []
     residual = math.inf
-    for k in range(max_iterations):
-        H, K = riccati_map(P)
-        F = H + Q_s - K.T @ R_s @ K
-        F = (F + F.T) * 0.5
+    for k in range(settings.max_iterations):
+        F, K = riccati_flow(riccati_map, Q_s, R_s, state.P)
         residual = float(np.linalg.norm(F))
         if not math.isfinite(residual):
-            return P, K, k + 1, r, False, residual, np.array(history), "the residual is not finite"
-        P_norm = float(np.linalg.norm(P))
+            why = "the residual is not finite"
+            return state.P, K, k + 1, state.r, False, residual, np.array(history), why
+        P_norm = float(np.linalg.norm(state.P))
         M = linearisation(images, R_s, K)
         modes = np.linalg.eigvals(M)
-        error = gain_error(images, M, modes, K, F) if rule == "relative" else residual
+        error = gain_error(images, M, modes, K, F) if settings.rule == "relative" else residual
         errors.append(error)
-        threshold = tol if rule == "relative" else tol * max(1.0, P_norm)
-        if error <= threshold if rule == "relative" else error < threshold:
-            why = _met(rule, error, tol, rejected)
-            return P, K, k + 1, r, True, residual, np.array(history), why
-        if eps is None:
-            eps = first = _first_step(modes, gain, P_norm, residual)
-        growing = float(np.max(modes.real)) if modes.size else 0.0
-        if growing > 0:
-            eps = min(eps, 0.5 / growing)
-        try:
-            X = _symmetric(np.linalg.solve(identity / eps - M, F[rows, cols]), n)
-        except np.linalg.LinAlgError:
-            X = np.full((n, n), np.nan)
-        P_new = P + X
-        size = float(np.linalg.norm(P_new))
-        if math.isfinite(size) and size > bounds(r):
-            P, eps, r = P0_s.copy(), None, r + 1
-            cone_streak = 0
+        if meets_tolerance(settings.rule, error, settings.tol, P_norm):
+            why = _met(settings.rule, error, settings.tol, state.rejected)
+            return state.P, K, k + 1, state.r, True, residual, np.array(history), why
+        state = _with_step(state, modes, settings.steps.gain, P_norm, residual)
+        X = _implicit_step(M, F, state.eps)
+        P_new = state.P + X
+        leaves = _outside(P_new, settings.bounds(state.r), settings.psd_tol)
+        if leaves == "bound":
+            state = _restarted_from(state, P0_s)
             history.append(0.0)
-            continue
-        if not math.isfinite(size) or np.linalg.eigvalsh(P_new)[0] < -psd_tol * size:
-            rejected += 1
-            cone_streak = cone_streak + 1 if eps <= first else 0
-            if cone_streak >= max_psd_resets:
-                return (
-                    P,
-                    K,
-                    k + 1,
-                    r,
-                    False,
-                    residual,
-                    np.array(history),
-                    _cone_message(cone_streak, eps),
-                )
-            eps *= SHRINK
+        elif leaves == "cone":
+            shorter = _shortened(state)
+            if shorter.cone_streak >= settings.max_psd_resets:
+                why = _cone_message(shorter.cone_streak, state.eps)
+                return state.P, K, k + 1, state.r, False, residual, np.array(history), why
+            state = shorter
             history.append(0.0)
-            continue
-        cone_streak = 0
-        change = float(np.linalg.norm(X))
-        history.append(change)
-        ratio = STRIDE * max(P_norm, 1e-300) / change if change > 0 else GROWTH
-        eps *= min(GROWTH, max(ratio, SHRINK))
-        P = P_new
-    if rule == "relative":
-        why = budget_report(np.array(errors), tol)
-    else:
-        why = f"residual {residual:.3g} > tol {tol:g} max(1, |P|)"
-    return P, K, max_iterations, r, False, residual, np.array(history), why
+        else:
+            change = float(np.linalg.norm(X))
+            history.append(change)
+            state = _advanced(state, P_new, change, P_norm)
+    why = unconverged_message(settings.rule, np.array(errors), residual, settings.tol)
+    return state.P, K, settings.max_iterations, state.r, False, residual, np.array(history), why
 
 
 def _met(rule: str, error: float, tol: float, rejected: int) -> str:

@@ -1,4 +1,4 @@
-"""Step length and budget report of value iteration, from the current iterate.
+"""Step length, stopping rule and budget report of value iteration, from the current iterate.
 
 Value iteration is forward Euler on the Riccati flow F(P) = A^T P + P A + Q - P B R^-1 B^T P.
 Linearised at P_k, the flow is the Lyapunov operator of the current closed loop
@@ -21,6 +21,8 @@ __all__ = [
     "budget_report",
     "euler_limit_of_modes",
     "euler_step_limit",
+    "meets_tolerance",
+    "unconverged_message",
 ]
 
 TRUST = 0.5
@@ -81,3 +83,21 @@ def budget_report(errors: NDArray, tol: float) -> str:
     return (
         text + trend + " (not falling: more iterations will not help; check the data or the step)"
     )
+
+
+def meets_tolerance(rule: str, error: float, tol: float, P_norm: float) -> bool:
+    """The stopping rule at an iterate of norm ``P_norm``: with ``rule`` "relative", the
+    estimated |K - K*| / |K| ``error`` is at most tol; otherwise the residual ``error`` is below
+    tol max(1, |P|)."""
+    if rule == "relative":
+        return error <= tol
+    return error < tol * max(1.0, P_norm)
+
+
+def unconverged_message(rule: str, errors: NDArray, residual: float, tol: float) -> str:
+    """Why the budget ran out unconverged: :func:`budget_report` of the per-iteration
+    estimates ``errors`` (k,) with the "relative" ``rule``, else the last residual against
+    tol."""
+    if rule == "relative":
+        return budget_report(errors, tol)
+    return f"residual {residual:.3g} > tol {tol:g} max(1, |P|)"

@@ -6,6 +6,7 @@ where the data tell them from zero (a cluster-robust Wald test, the covariance o
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -66,17 +67,119 @@ def _wald_p_values(X: NDArray, y: NDArray, cluster: NDArray, groups: list[list[i
     return np.asarray(p_values)
 
 
+def _columns_of(groups: list[list[int]]) -> list[int]:
+    """The exostate columns that ``groups`` hold, in order."""
+    return sorted(k for g in groups for k in g)
+
+
 def _independent_groups(design: Any, groups: list[list[int]], rtol: float) -> list[list[int]]:
     """``groups`` in order, less each whose columns of ``design(cols)`` (scaled to unit RMS)
     the groups before it already span to ``rtol``: on station at a constant altitude the
     density ratio is a constant."""
     kept: list[list[int]] = []
     for g in groups:
-        X = design(sorted(k for h in [*kept, g] for k in h))
+        X = design(_columns_of([*kept, g]))
         sv = np.linalg.svd(X / _column_scale(X), compute_uv=False)
         if sv.size and sv[0] > 0 and sv[-1] > rtol * sv[0]:
             kept.append(g)
     return kept
+
+
+def _checked_groups(groups: list[list[int]] | None, q: int) -> list[list[int]]:
+    """``groups`` as lists (default: each of the q columns alone); LearningError unless they
+    are disjoint sets of the q columns."""
+    kept = [list(g) for g in (groups if groups is not None else [[k] for k in range(q)])]
+    cols = _columns_of(kept)
+    if len(set(cols)) != len(cols) or not set(cols) <= set(range(q)):
+        raise LearningError(f"groups must be disjoint sets of the {q} exostate columns: {groups}")
+    return kept
+
+
+def _held_input(held: ArrayLike | None, cols: list[int], n: int, q: int) -> NDArray:
+    """D (n, q) as ``held`` (n, q) has it (default zero), with the fitted columns ``cols``
+    zero."""
+    D = np.zeros((n, q)) if held is None else np.array(held, dtype=float).reshape(n, q)
+    D[:, cols] = 0.0
+    return D
+
+
+def _unexplained(
+    y: NDArray, phi: NDArray, A: NDArray, B: NDArray, D: NDArray, positions: int
+) -> NDArray:
+    """The interval relation's residual y - A int x - B int u - D int v (rho, n - positions) of
+    y (rho, n) and phi (rho, n + m + q), on the rows after the first ``positions``
+    (kinematic)."""
+    n, m = B.shape
+    rest = y - phi[:, :n] @ A.T - phi[:, n : n + m] @ B.T - phi[:, n + m :] @ D.T
+    return rest[:, positions:]
+
+
+@dataclass(frozen=True)
+class _ExostateRegression:
+    """The unexplained motion ``target`` (rho n_f,) on the exostate's integrals phi_v (rho, q),
+    where each fitted column k of D is M theta_k with M (n_f, w): the identity on the n_f
+    fitted rows, or B's fitted rows when ``matched``."""
+
+    phi_v: NDArray
+    M: NDArray
+    target: NDArray
+    matched: bool
+
+    def design(self, cols: list[int]) -> NDArray:
+        """The regressor (rho n_f, len(cols) w) of the columns ``cols``' parameters."""
+        return np.kron(self.phi_v[:, cols], self.M)  # rows (interval, state), columns (mode, theta)
+
+    def parameters(self, cols: list[int], group: list[int]) -> list[int]:
+        """Where ``group``'s parameters stand among those of the columns ``cols``."""
+        w = self.M.shape[1]
+        return [cols.index(k) * w + j for k in group for j in range(w)]
+
+    def fit(self, cols: list[int], rtol: float) -> NDArray:
+        """theta (len(cols) w, 1), least squares on :meth:`design`; RankDeficientError when
+        the columns' parameters are not identifiable to ``rtol``."""
+        along = "along B" if self.matched else "row"
+        names = [f"int v{k} {along} {j}" for k in cols for j in range(self.M.shape[1])]
+        theta, _ = _full_rank_lstsq(self.design(cols), self.target[:, None], names, rtol)
+        return theta
+
+    def input_columns(self, cols: list[int], rtol: float) -> NDArray:
+        """D's fitted rows (n_f, len(cols)) in the columns ``cols``, fitted: M theta_k each."""
+        theta = self.fit(cols, rtol)
+        return self.M @ theta.reshape(len(cols), self.M.shape[1]).T
+
+
+def _significant_groups(
+    regression: _ExostateRegression,
+    groups: list[list[int]],
+    cluster: NDArray,
+    significance: float,
+) -> list[list[int]]:
+    """``groups`` less those whose coefficients the data do not tell from zero: one at a
+    time, the least significant first, each time refitting the rest, until every group's
+    cluster-robust Wald test (rows in clusters ``cluster`` (rho n_f,)) rejects "zero" at level
+    ``significance``."""
+    kept = list(groups)
+    while kept:
+        cols = _columns_of(kept)
+        X = regression.design(cols)
+        scale = _column_scale(X)
+        params = [regression.parameters(cols, g) for g in kept]
+        p_values = _wald_p_values(X / scale, regression.target, cluster, params)
+        worst = int(np.argmax(p_values))
+        if p_values[worst] <= significance:
+            break
+        kept.pop(worst)
+    return kept
+
+
+def _row_clusters(
+    data: IntegralData, length: float, stride: float, smoothing: float, rows: int
+) -> NDArray:
+    """The cluster (rho rows,) of each row of the flattened regression, ``rows`` rows an
+    interval: 2 (length + smoothing) s of interval starts each
+    (:func:`ddvi_core.fit_uncertainty.clusters`)."""
+    pairs = interval_pairs(data.t, data.segment, length, stride, smoothing)
+    return np.repeat(clusters(data, pairs, 2 * (length + smoothing)), rows)
 
 
 def fit_exosystem_input(
@@ -120,50 +223,21 @@ def fit_exosystem_input(
         raise LearningError(f"significance must lie in [0, 1), got {significance}")
     y, phi = interval_regressors(data, length, stride, smoothing)
     q = phi.shape[1] - n - m
-    kept = [list(g) for g in (groups if groups is not None else [[k] for k in range(q)])]
-    cols = sorted(k for g in kept for k in g)
-    if len(set(cols)) != len(cols) or not set(cols) <= set(range(q)):
-        raise LearningError(f"groups must be disjoint sets of the {q} exostate columns: {groups}")
-    D = np.zeros((n, q)) if held is None else np.array(held, dtype=float).reshape(n, q)
-    D[:, cols] = 0.0
-    rest = y - phi[:, :n] @ A.T - phi[:, n : n + m] @ B.T - phi[:, n + m :] @ D.T
-    rest = rest[:, positions:]
-    phi_v = phi[:, n + m :]
+    kept = _checked_groups(groups, q)
+    D = _held_input(held, _columns_of(kept), n, q)
+    target = _unexplained(y, phi, A, B, D, positions).reshape(-1)
     # each fitted column is M theta_k: M = I (free rows) or B's fitted rows (matched)
     M = B[positions:] if matched else np.eye(n - positions)
-    w = M.shape[1]
-    names = [f"int v{k} {'along B' if matched else 'row'} {j}" for k in range(q) for j in range(w)]
-
-    def design(cols: list[int]) -> NDArray:
-        return np.kron(phi_v[:, cols], M)  # rows (interval, state), columns (mode, theta)
-
-    def params(cols: list[int], g: list[int]) -> list[int]:
-        return [cols.index(k) * w + j for k in g for j in range(w)]
-
-    target = rest.reshape(-1)
+    regression = _ExostateRegression(phi[:, n + m :], M, target, matched)
     if significance > 0:  # a group the others already span says nothing of its own
-        kept = _independent_groups(design, kept, rtol)
-        cols = sorted(k for g in kept for k in g)
+        kept = _independent_groups(regression.design, kept, rtol)
+    cols = _columns_of(kept)
     if cols:  # the fitted columns must be identifiable before any is dropped
-        _full_rank_lstsq(
-            design(cols), target[:, None], [names[k * w + j] for k in cols for j in range(w)], rtol
-        )
+        regression.fit(cols, rtol)
     if significance > 0 and cols:
-        pairs = interval_pairs(data.t, data.segment, length, stride, smoothing)
-        cluster = np.repeat(clusters(data, pairs, 2 * (length + smoothing)), n - positions)
-        while kept:
-            cols = sorted(k for g in kept for k in g)
-            X = design(cols)
-            scale = _column_scale(X)
-            p_values = _wald_p_values(X / scale, target, cluster, [params(cols, g) for g in kept])
-            worst = int(np.argmax(p_values))
-            if p_values[worst] <= significance:
-                break
-            kept.pop(worst)
-    cols = sorted(k for g in kept for k in g)
+        cluster = _row_clusters(data, length, stride, smoothing, n - positions)
+        kept = _significant_groups(regression, kept, cluster, significance)
+    cols = _columns_of(kept)
     if cols:
-        theta, _ = _full_rank_lstsq(
-            design(cols), target[:, None], [names[k * w + j] for k in cols for j in range(w)], rtol
-        )
-        D[positions:, cols] = M @ theta.reshape(len(cols), w).T
+        D[positions:, cols] = regression.input_columns(cols, rtol)
     return D

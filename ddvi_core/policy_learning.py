@@ -26,18 +26,17 @@ gain 1e7 too large, which policy iteration then only halves per step.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ddvi_core.anderson import DEFAULT_MEMORY
 from ddvi_core.continuation import basis_images
 from ddvi_core.regression import RiccatiMap, implied_plant
 from ddvi_core.value_iteration import (
-    BoundSchedule,
+    LEARNING_METHODS,
     ClosedLoop,
-    StepSequence,
+    IterationSettings,
     value_iteration_loop,
 )
 
@@ -50,8 +49,6 @@ __all__ = [
     "policy_evaluation",
     "policy_iteration_loop",
 ]
-
-LEARNING_METHODS = ("vi", "pi", "hybrid")
 
 HYBRID_SWITCH = 0.1
 """The hybrid's value iteration hands over to policy iteration at this estimated relative
@@ -147,10 +144,7 @@ def _hybrid(
     R_s: NDArray,
     P0_s: NDArray,
     K0_s: NDArray,
-    steps: StepSequence,
-    bounds: BoundSchedule,
-    tol: float,
-    max_iterations: int,
+    settings: IterationSettings,
     closed_loop: ClosedLoop,
 ) -> LoopResult:
     """Value iteration until the gain's estimated relative error is at most HYBRID_SWITCH,
@@ -158,57 +152,20 @@ def _hybrid(
     images = basis_images(riccati_map)
     K, vi_iterations, resets = K0_s, 0, 0
     if not _stabilises(images, Q_s, R_s, K0_s, closed_loop):
+        near_settings = replace(
+            settings, method="vi", tol=max(settings.tol, HYBRID_SWITCH), rule="relative", memory=0
+        )
         P, K, vi_iterations, resets, near, _, _, why = value_iteration_loop(
-            riccati_map,
-            Q_s,
-            R_s,
-            P0_s,
-            steps,
-            bounds,
-            max(tol, HYBRID_SWITCH),
-            max_iterations,
-            closed_loop=closed_loop,
-            rule="relative",
+            riccati_map, Q_s, R_s, P0_s, near_settings, closed_loop
         )
         if not near:
             why = f"value iteration did not bring the gain near enough for policy iteration: {why}"
             return P, K, vi_iterations, resets, False, math.inf, np.zeros(0), why
         K = riccati_map(P)[1]
     advice = "the data's map is not the Lyapunov map of a plant; use value iteration (ddvi)"
-    out = policy_iteration_loop(
-        riccati_map, Q_s, R_s, K, tol, max(1, max_iterations - vi_iterations), images, advice
-    )
+    budget = max(1, settings.max_iterations - vi_iterations)
+    out = policy_iteration_loop(riccati_map, Q_s, R_s, K, settings.tol, budget, images, advice)
     return (*out[:2], out[2] + vi_iterations, resets, *out[4:])
-
-
-@dataclass(frozen=True)
-class IterationSettings:
-    """How the learner iterates on its data.
-
-    method : one of :data:`LEARNING_METHODS`: "vi" (value iteration, the paper's Algorithm
-        2), "pi" (policy iteration from a stabilising gain) or "hybrid" (value iteration
-        until the gain is near the fixed point, then policy iteration).
-    steps, bounds : value iteration's step sequence and its bounded sets' radii.
-    tol, max_iterations : the stopping rule's tolerance, and the iterations allowed.
-    rule : the stopping rule, "residual" (|F(P)| < tol max(1, |P|)) or "relative" (the
-        scale-free estimate of |K - K*| / |K| at most tol, :mod:`ddvi_core.continuation`).
-    memory : value iteration's Anderson acceleration over that many past steps (0: plain;
-        :mod:`ddvi_core.anderson`).
-    """
-
-    method: str = "vi"
-    steps: StepSequence = field(default_factory=StepSequence)
-    bounds: BoundSchedule = field(default_factory=BoundSchedule)
-    tol: float = 1e-6
-    max_iterations: int = 200_000
-    rule: str = "residual"
-    memory: int = DEFAULT_MEMORY
-
-    def __post_init__(self) -> None:
-        if self.method not in LEARNING_METHODS:
-            raise ValueError(
-                f"method must be one of {', '.join(LEARNING_METHODS)}, got {self.method!r}"
-            )
 
 
 def iterate(
@@ -224,31 +181,18 @@ def iterate(
     rules read the closed loop's eigenvalues off the matrices the data's map implies
     (:func:`ddvi_core.regression.implied_plant`), never A or B.
     """
-    method, steps, bounds = settings.method, settings.steps, settings.bounds
-    tol, max_iterations = settings.tol, settings.max_iterations
+    method = settings.method
     A_d, B_d = implied_plant(riccati_map, R_s)
 
     def closed_loop(K_s: NDArray) -> NDArray:
         return np.linalg.eigvals(A_d - B_d @ K_s)
 
     if method == "vi":
-        return value_iteration_loop(
-            riccati_map,
-            Q_s,
-            R_s,
-            P0_s,
-            steps,
-            bounds,
-            tol,
-            max_iterations,
-            closed_loop=closed_loop,
-            rule=settings.rule,
-            memory=settings.memory,
-        )
+        return value_iteration_loop(riccati_map, Q_s, R_s, P0_s, settings, closed_loop)
     if method == "pi":
-        return policy_iteration_loop(riccati_map, Q_s, R_s, K0_s, tol, max_iterations)
-    if method == "hybrid":
-        return _hybrid(
-            riccati_map, Q_s, R_s, P0_s, K0_s, steps, bounds, tol, max_iterations, closed_loop
+        return policy_iteration_loop(
+            riccati_map, Q_s, R_s, K0_s, settings.tol, settings.max_iterations
         )
+    if method == "hybrid":
+        return _hybrid(riccati_map, Q_s, R_s, P0_s, K0_s, settings, closed_loop)
     raise ValueError(f"method must be one of {', '.join(LEARNING_METHODS)}, got {method!r}")

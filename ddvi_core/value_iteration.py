@@ -17,18 +17,27 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from ddvi_core.anderson import DEFAULT_MEMORY, AndersonHistory
-from ddvi_core.continuation import basis_images, continuation_loop, gain_error, linearisation
-from ddvi_core.convergence import adaptive_step, budget_report
+from ddvi_core.continuation import (
+    LoopResult,
+    basis_images,
+    continuation_loop,
+    gain_error,
+    linearisation,
+    riccati_flow,
+)
+from ddvi_core.convergence import adaptive_step, meets_tolerance, unconverged_message
 
 __all__ = [
+    "LEARNING_METHODS",
     "BoundSchedule",
+    "IterationSettings",
     "Scaling",
     "StepSequence",
     "VIResult",
@@ -170,6 +179,45 @@ class BoundSchedule:
         return self.base * (r + 1) if self.kind == "linear" else self.base * 2.0 ** min(r, 1000)
 
 
+LEARNING_METHODS = ("vi", "pi", "hybrid")
+
+
+@dataclass(frozen=True)
+class IterationSettings:
+    """How the learner iterates on its data, and how value iteration's loops run.
+
+    method : one of :data:`LEARNING_METHODS`: "vi" (value iteration, the paper's Algorithm
+        2), "pi" (policy iteration from a stabilising gain) or "hybrid" (value iteration
+        until the gain is near the fixed point, then policy iteration).
+    steps, bounds : value iteration's step sequence and its bounded sets' radii.
+    tol, max_iterations : the stopping rule's tolerance, and the iterations allowed.
+    rule : the stopping rule, "residual" (|F(P)| < tol max(1, |P|)) or "relative" (the
+        scale-free estimate of |K - K*| / |K| at most tol, :mod:`ddvi_core.continuation`).
+    memory : value iteration's Anderson acceleration over that many past steps (0: plain;
+        :mod:`ddvi_core.anderson`).
+    psd_tol : P leaves the cone when an eigenvalue is below -psd_tol |P| (a strict test would
+        reset on round-off).
+    max_psd_resets : value iteration gives up after that many restarts in a row for leaving
+        the cone with no shorter step (:func:`value_iteration_loop`).
+    """
+
+    method: str = "vi"
+    steps: StepSequence = field(default_factory=StepSequence)
+    bounds: BoundSchedule = field(default_factory=BoundSchedule)
+    tol: float = 1e-6
+    max_iterations: int = 200_000
+    rule: str = "residual"
+    memory: int = DEFAULT_MEMORY
+    psd_tol: float = 1e-6
+    max_psd_resets: int = 3
+
+    def __post_init__(self) -> None:
+        if self.method not in LEARNING_METHODS:
+            raise ValueError(
+                f"method must be one of {', '.join(LEARNING_METHODS)}, got {self.method!r}"
+            )
+
+
 @dataclass(frozen=True)
 class VIResult:
     """Outcome of value iteration, gains in the problem's units.
@@ -211,9 +259,14 @@ def _step(
     return steps(k)
 
 
+def _frobenius(X: NDArray) -> float:
+    """|X|_F of X (n, n)."""
+    return float(np.sqrt(np.sum(X * X)))
+
+
 def _leaves(P: NDArray, radius: float, psd_tol: float) -> str:
     """ "bound" when |P|_F > radius, "cone" when an eigenvalue is below -psd_tol |P|, else ""."""
-    norm = float(np.sqrt(np.sum(P * P)))
+    norm = _frobenius(P)
     if norm > radius:
         return "bound"
     return "cone" if np.linalg.eigvalsh(P)[0] < -psd_tol * norm else ""
@@ -227,6 +280,14 @@ def _stop_message(rule: str, error: float, tol: float, accelerated: int, rejecte
         else f"residual {error:.3g} < tol {tol:g} max(1, |P|)"
     )
     return f"{met}; {accelerated} accelerated steps, {rejected} rejected by the safeguard"
+
+
+def _cone_resets_message(times: int, eps: float) -> str:
+    return (
+        f"P left the positive semidefinite cone {times} times from P0 with a "
+        f"step of {eps:.3g}, which the exact Riccati flow never does: the data do "
+        f"not determine the map well enough (collect more, or richer, data)"
+    )
 
 
 def _gain_error_of(
@@ -252,10 +313,99 @@ class _Acceleration:
     accepted: int = 0
     rejected: int = 0
 
+    @staticmethod
+    def of(settings: IterationSettings) -> _Acceleration:
+        """Anderson's history over ``settings.memory`` steps with the relative rule, none
+        otherwise.  The residual alone does not judge an extrapolation: measured on the default
+        mission's constant step, the residual-guarded extrapolation stalled at a residual of 31
+        in 200,000 iterations."""
+        accelerate = settings.memory > 0 and settings.rule == "relative"
+        return _Acceleration(AndersonHistory(settings.memory) if accelerate else None)
+
     def restart(self) -> None:
         self.fallback = None
         if self.history is not None:
             self.history.restart()
+
+    def take_back(self, error: float) -> NDArray | None:
+        """The safeguard: the plain step to take instead when the last extrapolated iterate
+        raised the stopping rule's measure to ``error`` (a rejection), else None."""
+        if self.fallback is None or error <= self.error_from:
+            return None
+        plain = self.fallback
+        self.fallback = None
+        self.rejected += 1
+        return plain
+
+    def extrapolate(
+        self, P: NDArray, F: NDArray, eps: float, error: float, radius: float, psd_tol: float
+    ) -> NDArray | None:
+        """Anderson's extrapolation of the step eps from P (n, n) along F (n, n) when it stays
+        in the cone and in the bound ``radius``, else None (one that leaves is a rejection).
+        Only once the gain stabilises (``error`` finite): there the iteration contracts and
+        the estimate judges an extrapolation."""
+        self.fallback = None
+        if self.history is None or not math.isfinite(error):
+            return None
+        extrapolated = self.history.propose(P, F, eps)
+        if extrapolated is None:
+            return None
+        if _leaves(extrapolated, radius, psd_tol):
+            self.rejected += 1
+            self.restart()
+            return None
+        self.accepted += 1
+        return extrapolated
+
+
+@dataclass(frozen=True)
+class _Restarts:
+    """The restarts from P0 (n, n): r of them (B_r the bound in force), and of those for leaving
+    the cone, how many in a row with no shorter step (``cone_streak``) and the last one's step
+    (``cone_eps``)."""
+
+    P0: NDArray
+    r: int = 0
+    cone_streak: int = 0
+    cone_eps: float = math.inf
+
+
+def _restarted(restarts: _Restarts, leaves: str, eps: float) -> _Restarts:
+    """``restarts`` after one more, because the step of ``eps`` left the bound ("bound") or the
+    cone ("cone").  With an unchanged step every restart retraces the same path, so the
+    streak grows while the step has not shrunk and starts again at 1 when it has."""
+    if leaves != "cone":
+        return replace(restarts, r=restarts.r + 1)
+    streak = restarts.cone_streak + 1 if eps >= restarts.cone_eps else 1
+    return _Restarts(restarts.P0, restarts.r + 1, streak, eps)
+
+
+def _next_iterate(
+    P: NDArray,
+    F: NDArray,
+    eps: float,
+    error: float,
+    acc: _Acceleration,
+    restarts: _Restarts,
+    settings: IterationSettings,
+) -> tuple[NDArray, _Restarts, str]:
+    """The iterate after P (n, n), whose flow is F (n, n), step eps and stopping measure
+    ``error``: Anderson's extrapolation when ``acc`` takes one (``acc`` then keeps the plain
+    step P + eps F to fall back on), else that plain step while it stays in the bound and the
+    cone, else P0 with the restart counted and ``acc`` restarted.  Also which of them the plain
+    step left ("bound", "cone", or "" when the iteration goes on)."""
+    P_new = P + eps * F
+    radius = settings.bounds(restarts.r)
+    extrapolated = acc.extrapolate(P, F, eps, error, radius, settings.psd_tol)
+    if extrapolated is not None:
+        acc.fallback = P_new
+        acc.error_from = error
+        return extrapolated, restarts, ""
+    leaves = _leaves(P_new, radius, settings.psd_tol)
+    if not leaves:
+        return P_new, restarts, ""
+    acc.restart()
+    return restarts.P0.copy(), _restarted(restarts, leaves, eps), leaves
 
 
 def value_iteration_loop(
@@ -263,17 +413,11 @@ def value_iteration_loop(
     Q_s: NDArray,
     R_s: NDArray,
     P0_s: NDArray,
-    steps: StepSequence,
-    bounds: BoundSchedule,
-    tol: float,
-    max_iterations: int,
-    psd_tol: float = 1e-6,
-    max_psd_resets: int = 3,
+    settings: IterationSettings,
     closed_loop: ClosedLoop | None = None,
-    rule: str = "residual",
-    memory: int = 0,
-) -> tuple[NDArray, NDArray, int, int, bool, float, NDArray, str]:
-    """The iteration shared by Algorithms 1 and 2, in scaled units.
+) -> LoopResult:
+    """The iteration shared by Algorithms 1 and 2, in scaled units, from P0_s (n, n) as
+    ``settings`` say (its ``method`` is not read).
 
     P~_{k+1} = P_k + eps_k (H_k + Q - K_{k+1}^T R K_{k+1});  reset to P0 (r += 1) when P~ leaves
     B_r (|P~|_F > radius, or an eigenvalue below -psd_tol |P~|: a strict PSD test would reset on
@@ -300,94 +444,45 @@ def value_iteration_loop(
     Returns (P, K, iterations, resets, converged, residual, history, why): ``why`` says why
     it stopped unconverged, or what was met when converged; ``history`` holds eps_k |F(P_k)|.
     """
-    if steps.kind == "implicit":
-        return continuation_loop(
-            riccati_map,
-            Q_s,
-            R_s,
-            P0_s,
-            steps.gain,
-            bounds,
-            tol,
-            max_iterations,
-            rule,
-            psd_tol,
-            max_psd_resets,
-        )
-    if steps.kind == "adaptive" and closed_loop is None:
+    if settings.steps.kind == "implicit":
+        return continuation_loop(riccati_map, Q_s, R_s, P0_s, settings)
+    if settings.steps.kind == "adaptive" and closed_loop is None:
         raise ValueError("the adaptive step needs closed_loop")
-    gain_error_of = _gain_error_of(riccati_map, R_s, P0_s.shape[0]) if rule == "relative" else None
+    relative = settings.rule == "relative"
+    gain_error_of = _gain_error_of(riccati_map, R_s, P0_s.shape[0]) if relative else None
     P = P0_s.copy()
-    r = psd_resets = 0  # PSD resets since the step last shrank
-    psd_eps = math.inf
-    history, errors = np.empty(max_iterations), np.empty(max_iterations)
-    residual = math.inf
     K = np.zeros((R_s.shape[0], P.shape[0]))
-    acc = _Acceleration(AndersonHistory(memory) if memory > 0 else None)
-    for k in range(max_iterations):
-        H, K = riccati_map(P)
-        dP = H + Q_s - K.T @ R_s @ K
-        dP = (dP + dP.T) * 0.5
-        residual = float(np.sqrt(np.sum(dP * dP)))
+    residual = math.inf
+    history = np.empty(settings.max_iterations)
+    errors = np.empty(settings.max_iterations)
+    restarts = _Restarts(P0_s)
+    acc = _Acceleration.of(settings)
+    for k in range(settings.max_iterations):
+        F, K = riccati_flow(riccati_map, Q_s, R_s, P)
+        residual = _frobenius(F)
         if not math.isfinite(residual) and acc.fallback is None:
-            return P, K, k + 1, r, False, residual, history[:k], "the residual is not finite"
-        P_norm = float(np.sqrt(np.sum(P * P)))
-        eps = _step(steps, k, K, P_norm, residual, closed_loop)
+            why = "the residual is not finite"
+            return P, K, k + 1, restarts.r, False, residual, history[:k], why
+        P_norm = _frobenius(P)
+        eps = _step(settings.steps, k, K, P_norm, residual, closed_loop)
         # the stopping rule's measure: the estimated |K - K*| / |K|, or the residual
-        if gain_error_of is not None:
-            errors[k], threshold = gain_error_of(K, dP), tol
-        else:
-            errors[k], threshold = residual, tol * max(1.0, P_norm)
-        if acc.fallback is not None and not errors[k] <= acc.error_from:
-            # the safeguard: the extrapolated iterate raised the stopping rule's measure (the
-            # residual, or the estimated error); take the plain step from where it came from
-            P, errors[k] = acc.fallback, math.inf
+        errors[k] = gain_error_of(K, F) if relative else residual
+        plain = acc.take_back(errors[k])
+        if plain is not None:  # take the plain step from where the extrapolation came from
+            P = plain
+            errors[k] = math.inf
             history[k] = history[k - 1] if k else 0.0
-            acc.rejected += 1
-            acc.fallback = None
             continue
-        P_new = P + eps * dP
         history[k] = eps * residual
-        if errors[k] <= threshold if gain_error_of else errors[k] < threshold:
-            done = _stop_message(rule, errors[k], tol, acc.accepted, acc.rejected)
-            return P_new, K, k + 1, r, True, residual, history[: k + 1], done
-        # accelerate only with the relative rule and once the gain stabilises (the estimate is
-        # finite): there the iteration contracts and the estimate judges an extrapolation.
-        # The residual alone does not: measured on the default mission's constant step, the
-        # residual-guarded extrapolation stalled at a residual of 31 in 200,000 iterations
-        use = acc.history is not None and rule == "relative" and math.isfinite(errors[k])
-        extrapolated = acc.history.propose(P, dP, eps) if use else None
-        acc.fallback = None
-        if extrapolated is not None and not _leaves(extrapolated, bounds(r), psd_tol):
-            acc.fallback, acc.error_from = P_new, errors[k]
-            acc.accepted += 1
-            P = extrapolated
-            continue
-        if extrapolated is not None:
-            acc.rejected += 1
-            acc.restart()
-        leaves = _leaves(P_new, bounds(r), psd_tol)
-        if leaves:
-            P = P0_s.copy()
-            r += 1
-            acc.restart()
-        if leaves == "cone":
-            psd_resets = psd_resets + 1 if eps >= psd_eps else 1
-            psd_eps = eps
-            if psd_resets >= max_psd_resets:
-                why = (
-                    f"P left the positive semidefinite cone {psd_resets} times from P0 with a "
-                    f"step of {eps:.3g}, which the exact Riccati flow never does: the data do "
-                    f"not determine the map well enough (collect more, or richer, data)"
-                )
-                return P, K, k + 1, r, False, residual, history[: k + 1], why
-        elif not leaves:
-            P = P_new
-    if rule == "relative":
-        why = budget_report(errors, tol)
-    else:
-        why = f"residual {residual:.3g} > tol {tol:g} max(1, |P|)"
-    return P, K, max_iterations, r, False, residual, history, why
+        if meets_tolerance(settings.rule, errors[k], settings.tol, P_norm):
+            done = _stop_message(settings.rule, errors[k], settings.tol, acc.accepted, acc.rejected)
+            return P + eps * F, K, k + 1, restarts.r, True, residual, history[: k + 1], done
+        P, restarts, leaves = _next_iterate(P, F, eps, errors[k], acc, restarts, settings)
+        if leaves == "cone" and restarts.cone_streak >= settings.max_psd_resets:
+            why = _cone_resets_message(restarts.cone_streak, eps)
+            return P, K, k + 1, restarts.r, False, residual, history[: k + 1], why
+    why = unconverged_message(settings.rule, errors, residual, settings.tol)
+    return P, K, settings.max_iterations, restarts.r, False, residual, history, why
 
 
 def value_iteration(
@@ -436,18 +531,11 @@ def value_iteration(
         return np.linalg.eigvals(A_s - B_s @ K_s)
 
     P0_s = 1e-3 * np.eye(n) if P0 is None else np.asarray(P0, dtype=float)
+    settings = IterationSettings(
+        "vi", steps or StepSequence(), bounds or BoundSchedule(), tol, max_iterations, rule, memory
+    )
     P_s, K_s, k, resets, converged, residual, history, why = value_iteration_loop(
-        riccati_map,
-        Q_s,
-        R_s,
-        P0_s,
-        steps or StepSequence(),
-        bounds or BoundSchedule(),
-        tol,
-        max_iterations,
-        closed_loop=closed_loop,
-        rule=rule,
-        memory=memory,
+        riccati_map, Q_s, R_s, P0_s, settings, closed_loop
     )
     K_s = RinvBt @ P_s
     message = (

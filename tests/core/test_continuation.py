@@ -14,7 +14,12 @@ import scipy.linalg
 
 from ddvi_core.continuation import basis_images, continuation_loop, gain_error, linearisation
 from ddvi_core.solve import solve
-from ddvi_core.value_iteration import BoundSchedule, StepSequence, value_iteration
+from ddvi_core.value_iteration import (
+    BoundSchedule,
+    IterationSettings,
+    StepSequence,
+    value_iteration,
+)
 from services.cli import main
 from services.config.files import load_system
 
@@ -95,16 +100,15 @@ def test_a_map_that_leaves_the_cone_stops_the_implicit_steps_and_says_so() -> No
     def leaky_map(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.diag([-0.1 * P[0, 0], -0.5 * P[0, 0]]), np.zeros((1, 2))
 
-    P, _, iterations, _, converged, _, _, why = continuation_loop(
-        leaky_map,
-        Q_s,
-        R_s,
-        1e-3 * np.eye(2),
-        0.5,
-        BoundSchedule("geometric", 1e6),
+    settings = IterationSettings(
+        steps=StepSequence("implicit", 0.5),
+        bounds=BoundSchedule("geometric", 1e6),
         tol=1e-9,
         max_iterations=10_000,
         rule="residual",
+    )
+    P, _, iterations, _, converged, _, _, why = continuation_loop(
+        leaky_map, Q_s, R_s, 1e-3 * np.eye(2), settings
     )
     assert not converged and iterations < 200
     assert "P left the positive semidefinite cone 3 times in a row" in why

@@ -10,6 +10,7 @@ from ddvi_core import models
 from ddvi_core.lqr import solve_lqr
 from ddvi_core.value_iteration import (
     BoundSchedule,
+    IterationSettings,
     Scaling,
     StepSequence,
     balanced_scaling,
@@ -181,17 +182,15 @@ def test_a_map_that_leaves_the_psd_cone_stops_early_and_says_so() -> None:
     def leaky_map(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.diag([-0.1 * P[0, 0], -0.5 * P[0, 0]]), np.zeros((1, 2))
 
-    out = value_iteration_loop(
-        leaky_map,
-        Q_s,
-        R_s,
-        1e-3 * np.eye(2),
-        StepSequence("constant", 0.01),
-        BoundSchedule("geometric", 1e6),
+    settings = IterationSettings(
+        steps=StepSequence("constant", 0.01),
+        bounds=BoundSchedule("geometric", 1e6),
         tol=1e-9,
         max_iterations=200_000,
+        memory=0,
         max_psd_resets=20,
     )
+    out = value_iteration_loop(leaky_map, Q_s, R_s, 1e-3 * np.eye(2), settings)
     P, _, iterations, resets, converged, _, _, why = out
     assert not converged and resets == 20
     assert iterations < 2_000  # not the 200,000 it would otherwise spin through
@@ -203,15 +202,5 @@ def test_a_map_that_leaves_the_psd_cone_stops_early_and_says_so() -> None:
     def lyap(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return A_s.T @ P + P @ A_s, np.zeros((1, 2))
 
-    out = value_iteration_loop(
-        lyap,
-        Q_s,
-        R_s,
-        1e-3 * np.eye(2),
-        StepSequence("constant", 0.01),
-        BoundSchedule("geometric", 1e6),
-        tol=1e-9,
-        max_iterations=200_000,
-        max_psd_resets=20,
-    )
+    out = value_iteration_loop(lyap, Q_s, R_s, 1e-3 * np.eye(2), settings)
     assert out[4] and out[3] == 0 and out[7].startswith("residual")
