@@ -15,8 +15,9 @@ follows from the plant's rates and the cost, never from the mission:
 - ``exploration_amplitude`` = sqrt(|Q| / |R|): the input that costs as much as a unit state
   (for a linear plant with no input limit the amplitude scales the data and not the gain);
 - the implicit step (:mod:`ddvi_core.continuation`, starting at half the Euler stability
-  limit of the starting closed loop), geometric bounds, the scale-free stopping rule on the
-  gain's estimated relative error at 1e-6, and a budget of 10,000 iterations.
+  limit of the starting closed loop) with geometric bounds (``IMPLICIT_ITERATION``), the
+  scale-free stopping rule on the gain's estimated relative error at 1e-6, and a budget of
+  10,000 iterations.
 
 K0 is never derived (zero unless given): an open-loop unstable plant needs a stabilising
 ``learning.K0``, and the data's simulation says so when they diverge.  A key given in the file
@@ -34,7 +35,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ddvi_core.exploration import InterleavedExploration, periodic_start
-from ddvi_core.learning_config import SYSTEM_FILE_LEARNING_KEYS, LearningConfig
+from ddvi_core.learning_config import (
+    IMPLICIT_ITERATION,
+    SYSTEM_FILE_LEARNING_KEYS,
+    LearningConfig,
+)
 from ddvi_core.lqr import NotStabilisingError, solve_lqr
 from ddvi_core.problem import RegulationProblem
 from ddvi_core.value_iteration import balanced_scaling
@@ -168,9 +173,7 @@ def derive_learning(
     )
     values.update(
         time_unit=w_hi,
-        step="implicit",
-        step_size=0.5,
-        bounds="geometric",
+        **IMPLICIT_ITERATION,
         stopping="relative",
         tol=1e-6,
         max_iterations=10_000,

@@ -1,6 +1,10 @@
 """How a data-driven learner explores, iterates and is scheduled: one configuration for a
 system file's ``[learning]`` table and a deputy's ``learning`` table in a deployment.
 
+:class:`LearningConfig` holds the one table of defaults.  A system file's missing keys are
+derived from its system (:mod:`ddvi_core.defaults`); a deputy's from the mission
+(:func:`mission_learning`, each of its values a rule stated there).
+
 Kept apart from :mod:`ddvi_core.systems` so that reading a deployment needs numpy alone (the
 value iteration's step and bound rules, which need scipy, are imported when asked for).
 """
@@ -8,8 +12,9 @@ value iteration's step and bound rules, which need scipy, are imported when aske
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
+from collections.abc import Collection
+from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,9 +28,11 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FLIGHT_SCHEDULE_KEYS",
+    "IMPLICIT_ITERATION",
     "SYSTEM_FILE_LEARNING_KEYS",
     "LearningConfig",
     "SystemFileError",
+    "mission_learning",
 ]
 
 
@@ -53,7 +60,8 @@ class LearningConfig:
     Newton's (:mod:`ddvi_core.continuation`).
     exploration_channels: 'common' (every input sums every frequency, each with its own phases)
     or 'interleaved' (input i takes frequencies i, i + m, ...).
-    A system file's missing keys are derived from the system (:mod:`ddvi_core.defaults`).
+    A system file's missing keys are derived from the system (:mod:`ddvi_core.defaults`), a
+    deputy's from the mission (:func:`mission_learning`).
 
     The flight software's schedule (:data:`FLIGHT_SCHEDULE_KEYS`, read from a deployment's
     ``deputy.learning`` table, never from a system file; in chief orbits): learn_at_orbits:
@@ -294,3 +302,40 @@ SYSTEM_FILE_LEARNING_KEYS = tuple(
     f.name for f in fields(LearningConfig) if f.name not in FLIGHT_SCHEDULE_KEYS
 )
 """The keys a system file's [learning] table may give."""
+
+IMPLICIT_ITERATION: dict[str, Any] = {"step": "implicit", "step_size": 0.5, "bounds": "geometric"}
+"""The implicit step from half the Euler stability limit of the starting closed loop, with
+geometric bounds (:mod:`ddvi_core.continuation`): what a system file derives
+(:mod:`ddvi_core.defaults`) and what a deputy flies (:func:`mission_learning`)."""
+
+MISSION_SEED = 1
+"""The exploration's phases the mission's figures are flown with (docs/results.md)."""
+
+
+def mission_learning(
+    given: LearningConfig, keys: Collection[str], attitude_limit: float
+) -> LearningConfig:
+    """A deputy's learning configuration: the keys in ``keys`` (its learning table's) as
+    ``given``; of the others, those below follow from the mission, and every other key keeps
+    LearningConfig's default (no exploration_frequencies: the controller spreads six from 0.3
+    to 30 times the orbit rate).
+
+    - exploration_amplitude = ``attitude_limit`` / 2 (MRP): the multi-sine (never above its
+      amplitude) takes half the commanded attitude's range and leaves the other half to the
+      feedback on K0; the default 1.0 would leave the feedback nothing (a limit is at most 1).
+    - K0: the default zero gain, written in the mission's shape (one input on x, y, xdot,
+      ydot), the one the flight software reads.
+    - step, step_size, bounds: :data:`IMPLICIT_ITERATION`.  On the mission's linear model
+      (the ``rendezvous`` scenario's data) the default, the paper's harmonic step 1/k with
+      linear bounds, is still at |K - K*| / |K*| = 1 after its 200,000 iterations.
+    - seed: :data:`MISSION_SEED`.  The phases are a draw (a campaign disperses them); the
+      default 0 is the example systems' (on seed 1 the double integrator's hybrid learner
+      does not converge).
+    """
+    mission: dict[str, Any] = {
+        "exploration_amplitude": attitude_limit / 2,
+        "K0": ((0.0, 0.0, 0.0, 0.0),),
+        "seed": MISSION_SEED,
+        **IMPLICIT_ITERATION,
+    }
+    return replace(given, **{k: v for k, v in mission.items() if k not in keys})

@@ -4,14 +4,14 @@ A deployment is TOML; every table maps onto one dataclass below, read by the str
 reader (``ddvi_core.tables``): a typo or a wrong type raises DeploymentError naming the key
 (``deputy[1].learning.intervl: unknown key (did you mean 'interval'?)``).  Services take all
 their parameters from here.  Angles in the file are degrees; lengths metres; times seconds.
-A deputy's ``learning`` table is a ``ddvi_core.learning_config.LearningConfig`` over the mission's
-defaults (:data:`MISSION_LEARNING`).
+A deputy's ``learning`` table is a ``ddvi_core.learning_config.LearningConfig``; the keys it
+leaves out follow from the mission (``ddvi_core.learning_config.mission_learning``, applied by
+``services.config.validation.deployment_from_table``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
@@ -22,7 +22,6 @@ from services.interface.topics import concrete_topics
 __all__ = [
     "DEPUTY_LEARNING_KEYS",
     "FAULT_KINDS",
-    "MISSION_LEARNING",
     "RESTART_POLICIES",
     "Atmosphere",
     "Bus",
@@ -128,18 +127,6 @@ class Navigation:
     acceleration_noise: float = 3e-5  # m/s^2, the filter's unmodelled acceleration, 1-sigma
 
 
-MISSION_LEARNING: dict[str, Any] = {
-    "exploration_amplitude": 0.1,  # rad (MRP) of the multi-sine
-    "K0": [[0.0, 0.0, 0.0, 0.0]],  # gain on x, y, xdot, ydot
-    "seed": 1,
-    "step": "implicit",  # ddvi_core.continuation
-    "step_size": 0.5,  # the first step, a fraction of the Euler stability limit
-    "bounds": "geometric",
-}
-"""The mission's learning defaults: a deputy's learning table overrides them key by key; every
-other key takes LearningConfig's default (no exploration_frequencies: the controller spreads six
-from 0.3 to 30 times the orbit rate)."""
-
 DEPUTY_LEARNING_KEYS = (
     "interval",
     "exploration_amplitude",
@@ -166,9 +153,8 @@ class Deputy:
     orbit: Orbit = field(default_factory=lambda: Orbit(a=6678.376e3, f=19.75))
     area_factor: float = 1.0  # truth facet area / nominal
     navigation: Navigation = field(default_factory=Navigation)
-    learning: LearningConfig = table_field(
-        LearningConfig, keys=DEPUTY_LEARNING_KEYS, defaults=MISSION_LEARNING
-    )
+    # read from a table, the keys it leaves out follow from the mission (deployment_from_table)
+    learning: LearningConfig = table_field(LearningConfig, keys=DEPUTY_LEARNING_KEYS)
     attitude_limit: float = 0.2  # |sigma_i| limit (MRP)
 
     @property

@@ -1,4 +1,5 @@
-"""The deployment's semantic checks, and :func:`deployment_from_table` (read, then check).
+"""The deployment's semantic checks, and :func:`deployment_from_table` (read, each deputy's
+learning completed from the mission, then check).
 
 The table reader (``ddvi_core.tables``) checks keys, types and shapes; the checks here are what
 a deployment must also satisfy to be run: values in range, periods that divide one another,
@@ -14,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import fields, replace
 from typing import Any
 
+from ddvi_core.learning_config import mission_learning
 from ddvi_core.relnav import FRAMES
 from ddvi_core.tables import from_table
 from services.config.deployment import (
@@ -344,8 +346,14 @@ def validate(dep: Deployment) -> None:
 
 
 def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
-    """A checked Deployment from a parsed TOML table (``path``: the file it came from)."""
+    """A checked Deployment from a parsed TOML table (``path``: the file it came from); each
+    deputy's learning takes the keys its table gives, the mission's for the rest
+    (``ddvi_core.learning_config.mission_learning``, by the deputy's attitude limit)."""
     dep = from_table(Deployment, table, keys=DEPLOYMENT_KEYS, error=DeploymentError)
-    dep = replace(dep, path=path)
+    deputies = [
+        replace(d, learning=mission_learning(d.learning, t.get("learning", {}), d.attitude_limit))
+        for d, t in zip(dep.deputy, table.get("deputy", []), strict=True)
+    ]
+    dep = replace(dep, deputy=deputies, path=path)
     validate(dep)
     return dep

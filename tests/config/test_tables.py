@@ -136,7 +136,7 @@ def test_a_class_check_is_reported_at_the_key_path() -> None:
 
 def test_system_file_and_deployment_read_the_same_learning_config() -> None:
     """One LearningConfig: a system file's [learning] and a deputy's learning table; each file
-    gives only its own keys, the deployment over the mission's defaults."""
+    gives only its own keys, a deputy's others following from the mission."""
     base = {"A": [[0.0, 1.0], [0.0, 0.0]], "B": [[0.0], [1.0]], "Q": [[1.0, 0.0], [0.0, 1.0]]}
     system = system_from_table({**base, "R": [[1.0]], "learning": {"step_size": 0.5}})
     assert isinstance(system.learning, LearningConfig) and system.learning.step_size == 0.5
@@ -145,11 +145,26 @@ def test_system_file_and_deployment_read_the_same_learning_config() -> None:
     learning = dep.deputy[0].learning
     assert isinstance(learning, LearningConfig) and learning.relearn
     assert (learning.step, learning.step_size, learning.seed) == ("implicit", 0.5, 1)
-    assert learning.K0 == ((0.0, 0.0, 0.0, 0.0),)
+    assert learning.K0 == ((0.0, 0.0, 0.0, 0.0),) and learning.exploration_amplitude == 0.1
+    assert learning.stopping == LearningConfig.stopping  # a key the mission leaves alone
     with pytest.raises(SystemFileError, match=r"^learning\.relearn: unknown key"):
         system_from_table({**base, "R": [[1.0]], "learning": {"relearn": True}})
     with pytest.raises(DeploymentError, match=r"^deputy\[0\]\.learning\.x0: unknown key"):
         deployment_from_table({"deputy": [{"name": "a", "learning": {"x0": [0.0]}}]})
+
+
+def test_a_deputys_exploration_amplitude_is_half_its_attitude_limit_unless_given() -> None:
+    """The mission's rule (``mission_learning``): the multi-sine takes half the attitude range."""
+    table = {
+        "deputy": [
+            {"name": "a", "attitude_limit": 0.3},
+            {"name": "b", "attitude_limit": 0.3, "learning": {"exploration_amplitude": 0.25}},
+            {"name": "c", "attitude_limit": 0.3, "learning": {"seed": 4}},
+        ]
+    }
+    a, b, c = (d.learning for d in deployment_from_table(table).deputy)
+    assert (a.exploration_amplitude, b.exploration_amplitude) == (0.15, 0.25)
+    assert (c.exploration_amplitude, c.seed, a.seed) == (0.15, 4, 1)
 
 
 def test_deployment_errors_name_the_nested_path() -> None:
