@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -227,6 +229,28 @@ def test_a_deputy_far_from_its_slot_does_not_hide_the_others_end_game() -> None:
         (note,) = ax.texts
         assert note.get_text() == "beyond this view: ddvi (10 km from its slot)"
     assert list(labelled(last, "chief").get_xydata()[0]) == [0.0, 0.0]
+
+
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+
+
+def test_the_documented_figures_are_every_figure_of_both_missions(
+    mismatched: dict[str, Figure],
+) -> None:
+    """docs/figures.md shows every figure of the default mission and realistic-nav, each run
+    stated with its command and commit, each PNG the size the figure code draws."""
+    text = (DOCS / "figures.md").read_text()
+    for command in ("`ddvi run` (defaults", "`ddvi run realistic-nav`"):
+        assert re.search(re.escape(command) + r"[^\n]* at commit [0-9a-f]{7}\b", text), command
+    for mission in ("rendezvous", "realistic-nav"):
+        for name, fig in mismatched.items():
+            assert f"](figures/{mission}/{name})" in text, (mission, name)
+            png = (DOCS / "figures" / mission / name).read_bytes()
+            assert png[:8] == b"\x89PNG\r\n\x1a\n"
+            width, height = struct.unpack(">II", png[16:24])  # the IHDR chunk's first fields
+            drawn = fig.get_size_inches() * fig.dpi
+            assert (width, height) == (round(drawn[0]), round(drawn[1])), (mission, name)
+    assert "[figures.md](figures.md)" in (DOCS / "results.md").read_text()
 
 
 def test_a_run_with_no_truth_draws_every_figure_without_lines() -> None:
