@@ -80,13 +80,12 @@ def references(series: list[DeputySeries]) -> list[Reference]:
     out: list[Reference] = []
     seen: list[tuple[FloatArray, FloatArray]] = []
     learners = [s for s in series if s.deputy.controller != "lqr"]
-    names = [s.deputy.name for s in learners]
     distinct = {
         (tuple(np.round(s.K_lqr.ravel(), 12)), tuple(np.round(_optimum(s)[0].ravel(), 12)))
         for s in learners
     }
     for s in learners:
-        who = f" ({s.deputy.name})" if len(distinct) > 1 and len(names) > 1 else ""
+        who = f" ({s.deputy.name})" if len(distinct) > 1 else ""
         K_opt, L_opt = _optimum(s)
         same = K_opt.shape == s.K_lqr.shape and np.allclose(K_opt, s.K_lqr, rtol=1e-9)
         candidates = (
@@ -140,8 +139,7 @@ def gains_figure(canvas: Canvas) -> Figure:
                 gains = data.craft.get(s.deputy.name, CraftData()).gains
                 if gains:
                     t, v = _gain_steps(gains, which, c, end)
-                    label = s.label
-                    ax.step(t / P, v, where="post", color=canvas.color(j), lw=1.2, label=label)
+                    ax.step(t / P, v, where="post", color=canvas.color(j), lw=1.2, label=s.label)
             values = []
             for r in refs:
                 ref = np.ravel(getattr(r, which))
@@ -182,9 +180,9 @@ def gains_figure(canvas: Canvas) -> Figure:
             ncols=len(labels),
             fontsize="small",
         )
-        legend(err, loc="upper right")
     else:
         err.text(0.5, 0.5, "no learning deputy", ha="center", transform=err.transAxes)
+    legend(err, loc="upper right")
     return fig
 
 
