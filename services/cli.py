@@ -203,10 +203,20 @@ COMMANDS: dict[str, tuple[str, Any]] = {
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse's parser, whose usage error is one line on stderr (and exit 2)."""
+    """argparse's parser, whose usage error is one line on stderr (and exit 2), said by the
+    innermost command given: an argument it does not take is named by it (``ddvi sweep delay:
+    unrecognized arguments: --mismatch 2``), not by ``ddvi``."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: list[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
 
 
 def folder_mode(text: str) -> int:

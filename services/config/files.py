@@ -105,12 +105,16 @@ def load_system(name_or_path: str) -> System:
     if path is None or not path.is_file():
         folders = shared_dirs("docs/examples/systems")
         examples = sorted({f.stem for folder in folders for f in folder.glob("*.toml")})
-        close = difflib.get_close_matches(name_or_path, [*BUILTIN_SYSTEMS, *examples], n=1)
+        # a path is matched by its file's name: docs/examples/cartpole.toml -> cart-pole,
+        # which any folder finds by that name
+        stem = Path(name_or_path).name.removesuffix(".toml")
+        close = difflib.get_close_matches(stem, [*BUILTIN_SYSTEMS, *examples], n=1)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
         raise SystemFileError(
-            f"{name_or_path}: no such built-in scenario, example or file{hint}; built-ins: "
-            + ", ".join(BUILTIN_SYSTEMS)
-            + (f"; examples: {', '.join(examples)}" if examples else "")
+            f"{name_or_path}: no such built-in scenario, example or file{hint}; give a "
+            f"built-in ({', '.join(BUILTIN_SYSTEMS)}), an example by its name "
+            + (f"({', '.join(examples)}) " if examples else "")
+            + "or a system file's path"
         )
     try:
         table = tomllib.loads(path.read_text())

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.config import Deployment, Deputy
-from services.ground.analysis.rundata import truth_hill
+from services.ground.analysis.rundata import GainRecord, truth_hill
 from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
 
 log = logging.getLogger("ddvi.scoring")
@@ -37,6 +37,17 @@ FloatArray = NDArray[np.float64]
 NOT_LEARNED = ("lqr", "initial", "fallback")
 """Gain sources that are not learned: the nominal LQR gain, K0 while exploring, the old gains
 a failed re-learning fell back to.  Any other source is a learner's."""
+
+
+def learned_switches(gains: Sequence[GainRecord]) -> list[float]:
+    """When (s) a controller's gains switched to learned ones from others, in order: its first
+    learning, then each re-learning."""
+    return [
+        r.t
+        for k, r in enumerate(gains)
+        if r.source not in NOT_LEARNED and (k == 0 or gains[k - 1].source != r.source)
+    ]
+
 
 NOT_LEARNED_TEXT = "not learned"
 """What a table prints for the gain error of a learner that flies no learned gain."""
