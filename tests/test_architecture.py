@@ -30,6 +30,7 @@ ALLOWED: dict[str, set[str]] = {
         "services.model",
         "services.flight",
     },
+    "services.ros2": set(),
 }
 """Which project packages each layer may import (besides itself and ``ddvi_core``)."""
 
@@ -78,7 +79,9 @@ def test_every_services_package_is_a_known_layer() -> None:
     assert packages == {layer for layer in ALLOWED if layer.startswith("services.")}
 
 
-@pytest.mark.parametrize("package", ["ddvi_core", "services.interface", "services.config"])
+@pytest.mark.parametrize(
+    "package", ["ddvi_core", "services.interface", "services.config", "services.ros2"]
+)
 def test_a_data_layer_loads_without_zenoh(package: str) -> None:
     """Configuration and the mathematics are data: reading a deployment needs no bus."""
     code = f"import sys, {package}; print('zenoh' in sys.modules)"
