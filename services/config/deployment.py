@@ -17,13 +17,14 @@ from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
 from services.interface.keys import key_matches
 from services.interface.links import LinkRule, LinkSpec, rule_latency
-from services.interface.topics import concrete_topics
+from services.interface.topics import ROS2_GATEWAY, concrete_topics
 
 __all__ = [
     "DEPUTY_LEARNING_KEYS",
     "FAULT_KINDS",
     "MISSION_LEARNING",
     "RESTART_POLICIES",
+    "ROS2_TOPICS",
     "Atmosphere",
     "Bus",
     "Deployment",
@@ -36,6 +37,7 @@ __all__ = [
     "Navigation",
     "Orbit",
     "Restart",
+    "Ros2",
     "Run",
     "SpacecraftSpec",
     "controller_label",
@@ -258,6 +260,28 @@ class Host:
     services: list[str] = field(default_factory=list)
 
 
+ROS2_TOPICS = ("clock", "odom", "truth", "attitude", "gains", "diagnostics", "tf")
+"""What the ROS 2 gateway can carry (docs/ros2.md, "Topics"): ``clock`` /clock; per deputy
+``odom`` its navigated relative state, ``truth`` its true one, ``attitude`` its commanded
+attitude, ``gains`` the gains its controller flies and the truth model's optimal ones;
+``diagnostics`` the services' health; ``tf`` the chief-to-deputy transforms."""
+
+
+@dataclass(frozen=True)
+class Ros2:
+    """The ROS 2 gateway (docs/ros2.md): one more service of the run, ``ros2-gateway``, that
+    carries the topics ``topics`` names (``ROS2_TOPICS``) to ROS 2 Jazzy over rmw_zenoh, in
+    ROS domain ``domain_id``, on a Zenoh session of its own at ``endpoint``: it joins the Zenoh
+    router that answers there (a user's ``rmw_zenohd``) or else serves that endpoint as the
+    router itself.  The run's bus is never opened to the ROS 2 side.  Off unless ``enabled``
+    (or ``ddvi run --ros2``)."""
+
+    enabled: bool = False
+    endpoint: str = "tcp/127.0.0.1:7447"  # rmw_zenoh's default router
+    domain_id: int = 0  # ROS_DOMAIN_ID
+    topics: list[str] = field(default_factory=lambda: list(ROS2_TOPICS))
+
+
 @dataclass(frozen=True)
 class Deployment:
     run: Run = field(default_factory=Run)
@@ -271,6 +295,7 @@ class Deployment:
     restart: list[Restart] = field(default_factory=list)
     fault: list[Fault] = field(default_factory=list)
     host: list[Host] = field(default_factory=list)
+    ros2: Ros2 = field(default_factory=Ros2)
     path: str = ""
 
     @property
@@ -279,6 +304,8 @@ class Deployment:
         names = ["monitor"]
         for d in self.deputy:
             names += [f"nav-{d.name}", f"ctrl-{d.name}"]
+        if self.ros2.enabled:
+            names.append(ROS2_GATEWAY)
         return [*names, "environment"]
 
     def topics(self) -> dict[str, str]:

@@ -29,6 +29,9 @@ EXOSTATE = "exo/state"
 RECORDED = "recorded"
 """The monitor's acknowledgement of what it has recorded (lock-step waits for the recorder)."""
 
+ROS2_GATEWAY = "ros2-gateway"
+"""The service that carries a run's topics to ROS 2 (a deployment's ``[ros2]``)."""
+
 
 def truth_topic(craft: str) -> str:
     """``truth/<craft>``: the environment's inertial state of one craft (chief or deputy)."""
@@ -142,11 +145,17 @@ SERVICES: tuple[ServiceName, ...] = (
     ServiceName(
         "ground-<pid>", "services.ground.launch.faults", "an operator's `ddvi fault` command"
     ),
+    ServiceName(
+        ROS2_GATEWAY,
+        "services.ros2.gateway.service",
+        "carries the run's topics to ROS 2 over rmw_zenoh (`ddvi run --ros2`, docs/ros2.md)",
+    ),
 )
 """Every kind of participant on the bus, by name."""
 
-_EVERY_SERVICE = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", "launcher")
-_FLIGHT_RUNTIME = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor")  # services.flight.runtime
+_EVERY_SERVICE = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", "launcher", ROS2_GATEWAY)
+# what services.flight.runtime runs
+_FLIGHT_RUNTIME = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", ROS2_GATEWAY)
 
 
 @dataclass(frozen=True)
@@ -176,7 +185,7 @@ TOPOLOGY: tuple[Route, ...] = (
         CLOCK,
         "clock",
         ("environment",),
-        ("nav-<sc>", "ctrl-<sc>", "monitor", "launcher", "ground-<pid>"),
+        ("nav-<sc>", "ctrl-<sc>", "monitor", "launcher", "ground-<pid>", ROS2_GATEWAY),
         "every flight-software step (run.fsw_period) in lock-step, every navigation sample "
         "(run.nav_period) in real time, and a final one",
         budget="nav",
@@ -192,7 +201,7 @@ TOPOLOGY: tuple[Route, ...] = (
         truth_topic("<craft>"),
         "truth",
         ("environment",),
-        ("nav-<sc>", "monitor"),
+        ("nav-<sc>", "monitor", ROS2_GATEWAY),
         "every navigation sample (run.nav_period), for the chief and every deputy; "
         "nav-<sc> takes truth/chief and truth/<sc>",
         identity=(("sc", "craft"),),
@@ -201,7 +210,7 @@ TOPOLOGY: tuple[Route, ...] = (
         nav_state_topic("<sc>"),
         "nav",
         ("nav-<sc>",),
-        ("ctrl-<sc>", "monitor"),
+        ("ctrl-<sc>", "monitor", ROS2_GATEWAY),
         "every navigation sample of the deputy (its navigation.period)",
         identity=_DEPUTY,
     ),
@@ -209,7 +218,7 @@ TOPOLOGY: tuple[Route, ...] = (
         command_topic("<sc>"),
         "cmd",
         ("ctrl-<sc>",),
-        ("environment", "monitor"),
+        ("environment", "monitor", ROS2_GATEWAY),
         "every flight-software step (run.fsw_period)",
         budget="fsw",
         identity=_DEPUTY,
@@ -218,7 +227,7 @@ TOPOLOGY: tuple[Route, ...] = (
         gains_topic("<sc>"),
         "gains",
         ("ctrl-<sc>",),
-        ("monitor",),
+        ("monitor", ROS2_GATEWAY),
         "at the start, every flight-software step while exploring, on learning, and at the end",
         budget="fsw",
         identity=_DEPUTY,
@@ -227,7 +236,7 @@ TOPOLOGY: tuple[Route, ...] = (
         status_topic("<sc>"),
         "status",
         ("ctrl-<sc>",),
-        ("monitor",),
+        ("monitor", ROS2_GATEWAY),
         "every run.status_every flight-software steps, and at the end",
         budget="status",
         identity=_DEPUTY,
@@ -285,7 +294,7 @@ TOPOLOGY: tuple[Route, ...] = (
         stats_topic("<service>"),
         "stats",
         _EVERY_SERVICE,
-        ("monitor",),
+        ("monitor", ROS2_GATEWAY),
         "every run.status_every flight-software steps (environment, controllers), after every "
         "restart or kill (launcher), and at each service's end",
         budget="status",
@@ -295,7 +304,7 @@ TOPOLOGY: tuple[Route, ...] = (
         log_topic("<service>"),
         "log",
         _EVERY_SERVICE,
-        ("monitor", "ground-<pid>"),
+        ("monitor", "ground-<pid>", ROS2_GATEWAY),
         "on an event: a fault acted on, a learning outcome, a warning",
         identity=_SERVICE,
     ),

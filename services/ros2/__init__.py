@@ -10,8 +10,15 @@ docs/ros2.md describes the wire format for users.
 Pure: no Zenoh session, no I/O.  Needs the ``ros2`` extra (rosbags, xxhash).
 
 May import: the standard library, numpy, rosbags, xxhash, ``ddvi_core``. Nothing else of
-``services``.
+``services``; its ``gateway`` package is the service that carries a run to ROS 2 with this
+wire format, a layer above it (its own docstring says what it may import).
 """
+
+import os
+
+# the gateway's process loads numpy through this package before its runtime can say so: BLAS
+# threads would compete with the services for the cores
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from services.ros2.conversions import (
     CHIEF_HILL_FRAME,

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from services.config import Deployment, Deputy
 from services.ground.analysis.rundata import truth_hill
-from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
+from services.model import holding_problems, lqr_gains, orbit_period, reference_gains
 
 log = logging.getLogger("ddvi.scoring")
 
@@ -155,17 +155,6 @@ def scored_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
     if K.shape != K_ref.shape or not np.any(K_ref) or not np.all(np.isfinite(K)):
         return None
     return relative_gain_error(K, K_ref)
-
-
-def reference_gains(dep: Deployment, deputy: Deputy) -> tuple[FloatArray | None, FloatArray | None]:
-    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run, or (None,
-    None) when it has none (no drag in the truth, or no stabilising solution)."""
-    try:
-        K, L = true_lqr_gains(dep, deputy)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
-        return None, None
-    return np.asarray(K), np.asarray(L)
 
 
 def holding_notes(dep: Deployment) -> dict[str, str]:
