@@ -23,12 +23,12 @@ ROS2_INSTALL = "pip install 'ddvi-fsw[ros2]'"
 def ros2_missing() -> str | None:
     """Why the ROS 2 gateway cannot run here (its packages are not installed), in one line, or
     None: found before any process is started."""
-    import importlib.util
-
-    absent = [p for p in ("rosbags", "xxhash") if importlib.util.find_spec(p) is None]
-    if not absent:
-        return None
-    return f"the ROS 2 gateway needs {' and '.join(absent)}, which is not installed: {ROS2_INSTALL}"
+    try:
+        import rosbags.typesys  # noqa: F401 - only whether it is there
+        import xxhash  # noqa: F401
+    except ImportError as exc:
+        return f"the ROS 2 gateway needs {exc.name}, which is not installed: {ROS2_INSTALL}"
+    return None
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -1,13 +1,16 @@
 """One mission message of every exposed ROS 2 type, a message as plain data (to compare messages
-of two type stores), and the ``.msg`` folder a ROS-less tool reads."""
+of two type stores), the ``.msg`` folder a ROS-less tool reads, and a Zenoh router of a test's
+own."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from services.ros2 import conversions as cv
 from services.ros2 import messages
@@ -65,3 +68,14 @@ def write_definitions(folder: Path, ros_types: tuple[str, ...]) -> None:
             path = folder / (name + ".msg")
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(text)
+
+
+def zenoh_router(port: int) -> zenoh.Session:
+    """A Zenoh router listening on 127.0.0.1:``port`` only, scouting off: what a ROS 2 user's
+    ``rmw_zenohd`` is to the ROS 2 side."""
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps("router"))
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    config.insert_json5("connect/endpoints", "[]")
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(config)

@@ -6,57 +6,18 @@ package's parser.  Offline: the SDK reads the ``.msg`` definitions the module wr
 from __future__ import annotations
 
 import itertools
-import json
 import time
-from pathlib import Path
 
 import pytest
 import zenoh
 
 from services.ros2 import keys, messages
 from services.ros2.keys import Attachment, Endpoint, EntityKind, Node, QoS
-from tests.ros2.samples import plain, sample, write_definitions
+from tests.ros2.samples import plain, sample, zenoh_router
 from tests.support import wait_until
 
 DOMAIN = 42
 """A ROS domain no other ROS 2 software on this machine would use by default."""
-
-
-def _router(port: int) -> zenoh.Session:
-    """A Zenoh router listening on 127.0.0.1:``port`` only, scouting off."""
-    config = zenoh.Config()
-    config.insert_json5("mode", json.dumps("router"))
-    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    config.insert_json5("connect/endpoints", "[]")
-    config.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(config)
-
-
-@pytest.fixture
-def sdk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    """zenoh-ros2-sdk reading this package's ``.msg`` files, never downloading, its session
-    config the bundled rmw_zenoh one (loopback) without environment overrides."""
-    from zenoh_ros2_sdk import message_registry
-    from zenoh_ros2_sdk.session import ZenohSession
-
-    monkeypatch.delenv("ZENOH_SESSION_CONFIG_URI", raising=False)
-    monkeypatch.delenv("ZENOH_CONFIG_OVERRIDE", raising=False)
-    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
-    write_definitions(tmp_path, messages.EXPOSED_TYPES)
-    downloads: list[str] = []
-
-    def no_download(package: str) -> None:
-        downloads.append(package)
-        raise RuntimeError(f"offline: no download of {package}")
-
-    monkeypatch.setattr(message_registry, "get_repository_for_package", no_download)
-    monkeypatch.setattr(
-        message_registry, "_registry", message_registry.MessageRegistry(str(tmp_path))
-    )
-    yield
-    if ZenohSession._instance is not None:
-        ZenohSession._instance.close()
-    assert downloads == [], f"zenoh-ros2-sdk tried to download {downloads}"
 
 
 def _publish_until_received(
@@ -79,7 +40,7 @@ def _publish_until_received(
 def test_zenoh_ros2_sdk_subscribers_decode_every_exposed_message(sdk, free_port: int) -> None:
     from zenoh_ros2_sdk import ROS2Subscriber
 
-    router = _router(free_port)
+    router = zenoh_router(free_port)
     subscribers = []
     try:
         gateway = Node(DOMAIN, str(router.info.zid()), 0, "ddvi_gateway")

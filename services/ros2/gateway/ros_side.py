@@ -45,20 +45,26 @@ JOINED = "joined"
 """The ROS 2 side joined the router that answered at its endpoint."""
 SERVING = "serving"
 """The ROS 2 side serves its endpoint as the router (none answered there)."""
-ATTEMPTS = 3
+ATTEMPTS = 2
 """Times the side tries to join, then to serve: a router may take the port between the two."""
 PROBE_TIMEOUT = 1.0
 """Wall seconds a TCP connection to the endpoint has to be accepted for it to be joined."""
+JOIN_TIMEOUT_MS = 2000
+"""Milliseconds a router that accepted the connection has to open the Zenoh session."""
 
 
 class RosSideError(RuntimeError):
     """The ROS 2 side can neither join nor serve its endpoint: one line saying what to do."""
 
 
-def _settings(endpoint: str, role: str) -> BusSettings:
-    if role == JOINED:  # a client of the user's router, listening on nothing
-        return BusSettings(mode="client", listen=[], connect=[endpoint])
-    return BusSettings(mode="router", listen=[endpoint], connect=[])
+def _config(endpoint: str, role: str) -> zenoh.Config:
+    if role == SERVING:
+        return zenoh_config(BusSettings(mode="router", listen=[endpoint], connect=[]))
+    # a client of the user's router, listening on nothing; something at the endpoint that
+    # accepts connections but speaks no Zenoh is given up on soon
+    config = zenoh_config(BusSettings(mode="client", listen=[], connect=[endpoint]))
+    config.insert_json5("transport/unicast/open_timeout", str(JOIN_TIMEOUT_MS))
+    return config
 
 
 def _listened(endpoint: str) -> bool:
@@ -81,7 +87,7 @@ def open_ros_session(endpoint: str) -> tuple[zenoh.Session, str]:
     for _ in range(ATTEMPTS):
         for role in (JOINED, SERVING) if _listened(endpoint) else (SERVING,):
             try:
-                return zenoh.open(zenoh_config(_settings(endpoint, role))), role
+                return zenoh.open(_config(endpoint, role)), role
             except zenoh.ZError as exc:
                 why = error_text(exc)
     raise RosSideError(
