@@ -5,12 +5,11 @@ the ``.msg`` definitions the module writes, offline."""
 from __future__ import annotations
 
 import struct
-from pathlib import Path
 
 import pytest
 
 from services.ros2 import messages
-from tests.ros2.samples import plain, sample, write_definitions
+from tests.ros2.samples import plain, sample
 
 JAZZY_HASHES = {
     messages.CLOCK: "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
@@ -98,24 +97,6 @@ def test_the_definitions_name_every_type_used_once() -> None:
         "uint32",
         "nanosec",
     ]
-
-
-@pytest.fixture
-def sdk_registry(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    """zenoh-ros2-sdk's message registry on the module's ``.msg`` files, its git download
-    replaced by a failure that the test sees (the registry swallows exceptions)."""
-    from zenoh_ros2_sdk import message_registry
-
-    write_definitions(tmp_path, messages.EXPOSED_TYPES)
-    downloads: list[str] = []
-
-    def no_download(package: str) -> None:
-        downloads.append(package)
-        raise RuntimeError(f"offline: no download of {package}")
-
-    monkeypatch.setattr(message_registry, "get_repository_for_package", no_download)
-    yield message_registry.MessageRegistry(str(tmp_path))
-    assert downloads == [], f"zenoh-ros2-sdk tried to download {downloads}"
 
 
 @pytest.mark.parametrize("ros_type", messages.EXPOSED_TYPES)
