@@ -17,7 +17,7 @@ from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
 from services.interface.keys import key_matches
 from services.interface.links import LinkRule, LinkSpec, rule_latency
-from services.interface.topics import ROS2_GATEWAY, concrete_topics
+from services.interface.topics import ROS2_GATEWAY, command_deputy, concrete_topics, publisher_of
 
 __all__ = [
     "DEPUTY_LEARNING_KEYS",
@@ -163,7 +163,7 @@ exostate and the iteration's units come from the rest of the deployment)."""
 @dataclass(frozen=True)
 class Deputy:
     name: str = ""
-    controller: str = "lqr"  # "lqr" or "ddvi"
+    controller: str = "lqr"  # "lqr", "ddvi" or "ros2" (its commands from ROS 2: docs/ros2.md)
     y_ref: float = 0.0  # along-track slot, m
     orbit: Orbit = field(default_factory=lambda: Orbit(a=6678.376e3, f=19.75))
     area_factor: float = 1.0  # truth facet area / nominal
@@ -180,9 +180,9 @@ class Deputy:
 
 
 def controller_label(controller: str, method: str | None) -> str:
-    """A controller as results tables name it: ``lqr``, or a learner with its
+    """A controller as results tables name it: ``lqr``, ``ros2``, or a learner with its
     learning.method (``ddvi value-iteration``, ``ddvi model-fit``)."""
-    return controller if controller == "lqr" or not method else f"{controller} {method}"
+    return f"{controller} {method}" if controller == "ddvi" and method else controller
 
 
 @dataclass(frozen=True)
@@ -260,11 +260,21 @@ class Host:
     services: list[str] = field(default_factory=list)
 
 
-ROS2_TOPICS = ("clock", "odom", "truth", "attitude", "gains", "diagnostics", "tf")
+ROS2_TOPICS = (
+    "clock",
+    "odom",
+    "altitude",
+    "truth",
+    "attitude",
+    "gains",
+    "diagnostics",
+    "tf",
+)
 """What the ROS 2 gateway can carry (docs/ros2.md, "Topics"): ``clock`` /clock; per deputy
-``odom`` its navigated relative state, ``truth`` its true one, ``attitude`` its commanded
-attitude, ``gains`` the gains its controller flies and the truth model's optimal ones;
-``diagnostics`` the services' health; ``tf`` the chief-to-deputy transforms."""
+``odom`` its navigated relative state, ``altitude`` navigation's altitude, ``truth`` its true
+relative state, ``attitude`` its commanded attitude, ``gains`` the gains its controller flies
+and the truth model's optimal ones; ``diagnostics`` the services' health; ``tf`` the
+chief-to-deputy transforms."""
 
 
 @dataclass(frozen=True)
@@ -302,8 +312,10 @@ class Deployment:
     def services(self) -> list[str]:
         """Service names, in start order (the environment, the time master, last)."""
         names = ["monitor"]
-        for d in self.deputy:
-            names += [f"nav-{d.name}", f"ctrl-{d.name}"]
+        for d in self.deputy:  # a deputy flown from ROS 2 has no controller of the run's
+            names += (
+                [f"nav-{d.name}"] if d.controller == "ros2" else [f"nav-{d.name}", f"ctrl-{d.name}"]
+            )
         if self.ros2.enabled:
             names.append(ROS2_GATEWAY)
         return [*names, "environment"]
@@ -315,6 +327,19 @@ class Deployment:
         return concrete_topics(
             {"craft": ["chief", *deputies], "sc": deputies, "service": [*self.services, "launcher"]}
         )
+
+    def commander(self, deputy: str) -> str:
+        """The service that puts deputy ``deputy``'s commands on the bus: its controller
+        ``ctrl-<deputy>``, or the ROS 2 gateway for a deputy flown from ROS 2."""
+        flown = any(d.name == deputy and d.controller == "ros2" for d in self.deputy)
+        return ROS2_GATEWAY if flown else f"ctrl-{deputy}"
+
+    def publisher_of(self, topic: str) -> str | None:
+        """The one service that publishes ``topic`` in a run of this deployment: the
+        topology's (``topics.publisher_of``), but a ROS 2-flown deputy's commands are the
+        gateway's."""
+        deputy = command_deputy(topic)
+        return self.commander(deputy) if deputy is not None else publisher_of(topic)
 
     def session_lease_ms(self) -> int:
         """Every session's lease (zenoh ``transport/link/tx/lease``), the hub's and each

@@ -103,13 +103,16 @@ def check_bodies(dep: Deployment) -> None:
 
 def _check_deputy_craft(w: str, d: Deputy) -> None:
     """A deputy's controller, orbit, panel and attitude limit."""
-    if d.controller not in ("lqr", "ddvi"):
-        raise DeploymentError(f"{w}.controller: expected 'lqr' or 'ddvi', got {d.controller!r}")
+    _one_of(f"{w}.controller", d.controller, CONTROLLERS)
     _positive(f"{w}.orbit.a", d.orbit.a)
     _positive(f"{w}.area_factor", d.area_factor)
     if not 0 < d.attitude_limit <= 1:
         raise DeploymentError(f"{w}.attitude_limit: expected 0 < limit <= 1 (MRP)")
 
+
+CONTROLLERS = ("lqr", "ddvi", "ros2")
+"""deputy.controller: the model-based LQR, the learner, or a ROS 2 node's commands through the
+ROS 2 gateway (docs/ros2.md)."""
 
 NAV_FILTERS = ("kalman", "none")
 """navigation.filter: a Kalman filter on the Hill state (ddvi_core.navfilter), or none."""
@@ -363,6 +366,12 @@ def check_ros2(dep: Deployment) -> None:
         if topic in ros2.topics[:k]:
             raise DeploymentError(f"ros2.topics[{k}]: {topic!r} is given twice")
     if not ros2.enabled:
+        for k, d in enumerate(dep.deputy):
+            if d.controller == "ros2":
+                raise DeploymentError(
+                    f"deputy[{k}].controller: 'ros2' flies on a ROS 2 node's commands, which "
+                    "come through the ROS 2 gateway: set [ros2] enabled = true or run with --ros2"
+                )
         return
     for k, d in enumerate(dep.deputy):
         if not ROS_NAME_TOKEN.fullmatch(d.name):

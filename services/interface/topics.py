@@ -48,6 +48,14 @@ def command_topic(deputy: str) -> str:
     return f"cmd/{deputy}/att"
 
 
+def command_deputy(topic: str) -> str | None:
+    """The deputy a command topic ``cmd/<deputy>/att`` is for; None for any other topic."""
+    parts = topic.split("/")
+    if len(parts) == 3 and parts[0] == "cmd" and parts[2] == "att" and parts[1]:
+        return parts[1]
+    return None
+
+
 def gains_topic(deputy: str) -> str:
     """``ctrl/<deputy>/gains``: the gains (K, L) a deputy's controller flies."""
     return f"ctrl/{deputy}/gains"
@@ -217,9 +225,10 @@ TOPOLOGY: tuple[Route, ...] = (
     Route(
         command_topic("<sc>"),
         "cmd",
-        ("ctrl-<sc>",),
+        ("ctrl-<sc>", ROS2_GATEWAY),
         ("environment", "monitor", ROS2_GATEWAY),
-        "every flight-software step (run.fsw_period)",
+        "every flight-software step (run.fsw_period); the ROS 2 gateway's for a deputy flown "
+        "from ROS 2 (controller = ros2), its controller's for any other",
         budget="fsw",
         identity=_DEPUTY,
     ),
@@ -427,9 +436,11 @@ def budget_period(topic: str) -> str | None:
 
 @functools.lru_cache(maxsize=4096)
 def publisher_of(topic: str) -> str | None:
-    """The one service that may publish ``topic`` (e.g. ``ctrl-lqr`` for ``cmd/lqr/att``,
-    ``nav-lqr`` for ``stats/nav-lqr``); ``ground`` for a ground command's; None for a topic
-    outside the topology."""
+    """The service that publishes ``topic`` (e.g. ``ctrl-lqr`` for ``cmd/lqr/att``, ``nav-lqr``
+    for ``stats/nav-lqr``): its route's first publisher, so a command topic's is the deputy's
+    controller (a deployment gives a ROS 2-flown deputy's to the gateway:
+    ``Deployment.publisher_of``); ``ground`` for a ground command's; None for a topic outside
+    the topology."""
     found = _route_of(topic)
     if found is None:
         return None
@@ -437,7 +448,7 @@ def publisher_of(topic: str) -> str | None:
     if "service" in names:
         return names["service"]
     template = route.publishers[0]
-    if len(route.publishers) > 1 or "<pid>" in template:
+    if "<pid>" in template:
         return template.split("-<", 1)[0]
     return _PLACEHOLDER.sub(lambda m: names.get(m.group(1), m.group(0)), template)
 

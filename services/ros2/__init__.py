@@ -24,6 +24,8 @@ from services.ros2.conversions import (
     CHIEF_HILL_FRAME,
     Level,
     Status,
+    altitude_from_message,
+    altitude_message,
     attitude_command,
     attitude_command_mrp,
     base_link_frame,
@@ -63,6 +65,7 @@ from services.ros2.keys import (
     qos_keyexpr,
 )
 from services.ros2.messages import (
+    ALTITUDE,
     ATTITUDE_COMMAND,
     CLOCK,
     DIAGNOSTICS,
@@ -79,6 +82,7 @@ from services.ros2.messages import (
 )
 
 __all__ = [
+    "ALTITUDE",
     "ATTITUDE_COMMAND",
     "CHIEF_HILL_FRAME",
     "CLOCK",
@@ -94,6 +98,8 @@ __all__ = [
     "Node",
     "QoS",
     "Status",
+    "altitude_from_message",
+    "altitude_message",
     "attitude_command",
     "attitude_command_mrp",
     "base_link_frame",

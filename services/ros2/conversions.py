@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ddvi_core.orbit import mrp_to_dcm
 from services.ros2.messages import (
+    ALTITUDE,
     ATTITUDE_COMMAND,
     CLOCK,
     DIAGNOSTICS,
@@ -45,6 +46,8 @@ __all__ = [
     "CHIEF_HILL_FRAME",
     "Level",
     "Status",
+    "altitude_from_message",
+    "altitude_message",
     "attitude_command",
     "attitude_command_mrp",
     "base_link_frame",
@@ -282,6 +285,23 @@ def hill_state_from_odometry(message: Any) -> FloatArray:
     BH = mrp_to_dcm(quaternion_to_mrp(_quaternion_array(pose.orientation)))
     velocity = BH.T @ _xyz(message.twist.twist.linear)
     return np.concatenate([_xyz(pose.position), velocity])
+
+
+def altitude_message(t: float, sc: str, altitude: float) -> Any:
+    """``geometry_msgs/msg/PointStamped``: deputy ``sc``'s altitude ``altitude`` (m above the
+    Earth's reference sphere, R_E) at ``t`` (s), as the point of that sphere below the deputy
+    in its own Hill frame ``<sc>/hill`` (x radial outward): [-altitude, 0, 0].
+
+    A ROS message for a stamped altitude, in a standard type every ROS tool reads (a Float64
+    has no stamp to pair it with its navigation sample); ``altitude_from_message`` recovers it.
+    """
+    h = float(_vector([altitude], (1,), "altitude")[0])
+    return _msg(ALTITUDE)(header=_header(t, hill_frame(sc)), point=_point(np.array([-h, 0.0, 0.0])))
+
+
+def altitude_from_message(message: Any) -> float:
+    """The altitude (m) of an ``altitude_message``."""
+    return -float(message.point.x)
 
 
 # ---------------------------------------------------------------------------------- frames

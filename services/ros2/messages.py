@@ -19,6 +19,7 @@ simulation clock              ``rosgraph_msgs/msg/Clock``                ``clock
 relative navigation           ``nav_msgs/msg/Odometry``                  ``odometry_message``
 commanded attitude            ``geometry_msgs/msg/QuaternionStamped``    ``attitude_command``
 controller gains              ``std_msgs/msg/Float64MultiArray``         ``gains_message``
+a deputy's altitude           ``geometry_msgs/msg/PointStamped``         ``altitude_message``
 frames                        ``tf2_msgs/msg/TFMessage``                 ``tf_message``
 health                        ``diagnostic_msgs/msg/DiagnosticArray``    ``diagnostic_array``
 ============================  =========================================  =====================
@@ -34,6 +35,7 @@ from typing import Any
 from rosbags.typesys import Stores, get_typestore
 
 __all__ = [
+    "ALTITUDE",
     "ATTITUDE_COMMAND",
     "CLOCK",
     "DIAGNOSTICS",
@@ -59,8 +61,17 @@ ATTITUDE_COMMAND = "geometry_msgs/msg/QuaternionStamped"
 GAINS = "std_msgs/msg/Float64MultiArray"
 TF = "tf2_msgs/msg/TFMessage"
 DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
+ALTITUDE = "geometry_msgs/msg/PointStamped"
 
-EXPOSED_TYPES: tuple[str, ...] = (CLOCK, ODOMETRY, ATTITUDE_COMMAND, GAINS, TF, DIAGNOSTICS)
+EXPOSED_TYPES: tuple[str, ...] = (
+    CLOCK,
+    ODOMETRY,
+    ATTITUDE_COMMAND,
+    GAINS,
+    TF,
+    DIAGNOSTICS,
+    ALTITUDE,
+)
 """Every message type the mission exposes to ROS 2."""
 
 _TYPE_NAME = re.compile(r"([A-Za-z][A-Za-z0-9_]*)/(msg|srv|action)/([A-Za-z][A-Za-z0-9_]*)")

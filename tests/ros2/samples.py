@@ -39,6 +39,7 @@ def sample(ros_type: str) -> Any:
                 cv.hill_transform(T, "ddvi", -HILL_STATE),
             ]
         ),
+        messages.ALTITUDE: lambda: cv.altitude_message(T, "lqr", 301234.5625),
         messages.DIAGNOSTICS: lambda: cv.diagnostic_array(
             T,
             [

@@ -236,3 +236,16 @@ def test_health_statuses_come_back_from_the_wire() -> None:
     assert back[0].values == (("rate_hz", "10"), ("age", "0.1"))
     with pytest.raises(ValueError):
         cv.Status("x", 7)  # type: ignore[arg-type]
+
+
+def test_an_altitude_is_the_point_of_the_earths_sphere_below_the_deputy_in_its_hill_frame() -> None:
+    message = cv.altitude_message(120.0, "lqr", 301234.5625)
+    back = messages.deserialize(messages.serialize(message, messages.ALTITUDE), messages.ALTITUDE)
+    assert back.header.frame_id == "lqr/hill" and (
+        back.header.stamp.sec,
+        back.header.stamp.nanosec,
+    ) == (120, 0)
+    assert (back.point.x, back.point.y, back.point.z) == (-301234.5625, 0.0, 0.0)
+    assert cv.altitude_from_message(back) == 301234.5625
+    with pytest.raises(ValueError, match="finite"):
+        cv.altitude_message(0.0, "lqr", float("nan"))

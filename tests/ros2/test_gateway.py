@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 
 from services.cli import main as ddvi
-from services.config import deployment_from_table
+from services.config import DeploymentError, deployment_from_table
+from services.flight.inprocess import run_in_process
 from services.interface import Message, decode, encode
 from services.model import initial_states, navigation_state, reference_gains
 from services.ros2 import conversions as cv
 from services.ros2 import keys, messages
 from services.ros2.gateway import ros_side
+from services.ros2.gateway.commands import REASONS, CommandIntake
 from services.ros2.gateway.exposure import NODE_NAME, Translator, ros_topics
 from services.ros2.gateway.health import Health
 from services.ros2.gateway.service import bus_inputs
@@ -57,6 +59,7 @@ def test_every_topic_of_the_table_and_only_those() -> None:
     for sc in ("lqr", "ddvi"):
         expected |= {
             f"/{sc}/odom": messages.ODOMETRY,
+            f"/{sc}/altitude": messages.ALTITUDE,
             f"/{sc}/truth/odom": messages.ODOMETRY,
             f"/{sc}/commanded_attitude": messages.ATTITUDE_COMMAND,
             **{
@@ -94,15 +97,16 @@ def test_the_gateway_is_a_service_of_the_run_only_when_enabled() -> None:
 # ---- what bus messages become -------------------------------------------------------------
 
 
-def test_navigation_becomes_odometry_equal_to_the_bus_message() -> None:
+def test_navigation_becomes_odometry_and_altitude_equal_to_the_bus_message() -> None:
     dep = _dep()
     x = np.array([-12.5, -29000.25, 3.25, 0.0125, -0.031, 0.0042])
     cov = np.diag([4.0, 9.0, 1.0, 1e-4, 2e-4, 5e-5])
     body = {"sc": "lqr", "x_hill": x, "z_hill": x, "cov": cov, "altitude": 3e5, "valid": True}
-    ((topic, odometry),) = Translator(dep, _everyone).translate(
+    (topic, odometry), (where, altitude) = Translator(dep, _everyone).translate(
         _message("nav", body, 5430.0, "nav-lqr")
     )
-    assert topic == "/lqr/odom"
+    assert (topic, where) == ("/lqr/odom", "/lqr/altitude")
+    assert cv.altitude_from_message(altitude) == 3e5 and altitude.header.stamp.sec == 5430
     back = messages.deserialize(messages.serialize(odometry, messages.ODOMETRY), messages.ODOMETRY)
     assert back.header.frame_id == "chief_hill" and back.child_frame_id == "lqr/base_link"
     assert cv.seconds_from_time(back.header.stamp.sec, back.header.stamp.nanosec) == 5430.0
@@ -326,3 +330,125 @@ def test_ros2_beyond_loopback_is_said(
     assert "reaches beyond this machine" in capsys.readouterr().err
     assert ddvi(["run", "--ros2", "--output", str(tmp_path)]) == 0
     assert "beyond" not in capsys.readouterr().err
+
+
+# ---- a deputy flown from ROS 2 ------------------------------------------------------------
+
+FLOWN: dict[str, Any] = {
+    **TABLE,
+    "deputy": [{"name": "lqr", "controller": "lqr"}, {"name": "rosd", "controller": "ros2"}],
+}
+
+
+def test_a_deputy_flown_from_ros2_has_the_gateway_for_its_controller() -> None:
+    dep = deployment_from_table(FLOWN)
+    assert dep.services == [
+        "monitor",
+        "nav-lqr",
+        "ctrl-lqr",
+        "nav-rosd",
+        "ros2-gateway",
+        "environment",
+    ]
+    assert (dep.commander("rosd"), dep.commander("lqr")) == ("ros2-gateway", "ctrl-lqr")
+    assert dep.publisher_of("cmd/rosd/att") == "ros2-gateway"
+    assert dep.publisher_of("cmd/lqr/att") == "ctrl-lqr"
+    assert dep.publisher_of("nav/rosd/state") == "nav-rosd"
+    assert dep.deputy[1].label == "ros2"
+    names = {t.name for t in ros_topics(dep) if t.deputy == "rosd"}
+    assert names == {f"/rosd/{t}" for t in ("odom", "altitude", "truth/odom", "commanded_attitude")}
+    with pytest.raises(DeploymentError, match=r"deputy\[1\].controller: 'ros2' .* --ros2"):
+        deployment_from_table({**FLOWN, "ros2": {}})
+    with pytest.raises(DeploymentError, match="the one-process executor has no ROS 2 node"):
+        run_in_process(dep)
+
+
+class _Node:
+    """What the command intake uses of a RosNode: its announcements and its listener."""
+
+    def __init__(self) -> None:
+        self.node = Node(42, "aac3178e146ba6f1fc6e6a4085e77f21", 0, NODE_NAME)
+        self.announced: list[str] = []
+        self.listening: list[str] = []
+
+    def subscription(self, topic: str, ros_type: str, qos: QoS) -> None:
+        self.announced.append(topic)
+
+    def listen(self, key_expr: str, handler: Any) -> None:
+        self.listening.append(key_expr)
+
+
+class _Sample:
+    def __init__(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+        self.key_expr, self.payload = key, _Bytes(payload)
+        self.attachment = None if attachment is None else _Bytes(attachment)
+
+
+class _Bytes:
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+def _command(sc: str, t: float, sigma3: float = 0.1, frame: str = "") -> bytes:
+    message = cv.attitude_command(t, sc, [0.0, 0.0, sigma3])
+    if frame:
+        message.header.frame_id = frame
+    return messages.serialize(message, messages.ATTITUDE_COMMAND)
+
+
+def test_commands_from_ros2_reach_the_bus_only_when_every_check_passes() -> None:
+    dep = deployment_from_table(FLOWN)
+    node, put, said = _Node(), [], []
+    intake = CommandIntake(dep, node, lambda *a: put.append(a), said.append)
+    assert node.announced == ["/rosd/cmd_attitude"]
+    assert node.listening == [
+        "42/*/cmd_attitude/geometry_msgs::msg::dds_::QuaternionStamped_/"
+        + messages.type_hash(messages.ATTITUDE_COMMAND)
+    ]
+    gid = bytes(range(16))
+    attachment = keys.encode_attachment(keys.Attachment(1, time.time_ns(), gid))
+
+    def on(sc: str, payload: bytes, with_attachment: bool = True) -> None:
+        key = f"42/{sc}/cmd_attitude/QuaternionStamped_/RIHS01_{'0' * 64}"
+        intake.on_sample(_Sample(key, payload, attachment if with_attachment else None))
+
+    intake.carried(60.0)  # the gateway has carried the mission to t = 60 s
+    on("rosd", _command("rosd", 0.0))
+    on("rosd", _command("rosd", 60.0, -0.05))
+    ((sc, sigma, t), (_, sigma60, t60)) = put
+    assert (sc, t, t60) == ("rosd", 0.0, 60.0)
+    assert np.allclose(sigma, [0.0, 0.0, 0.1], atol=1e-15)
+    assert np.allclose(sigma60, [0.0, 0.0, -0.05], atol=1e-15)
+    bad = {
+        "not_ros2": ("lqr", _command("lqr", 60.0)),
+        "malformed": ("rosd", b"\x00\x01\x00\x00garbage"),
+        "frame": ("rosd", _command("rosd", 120.0, frame="chief_hill")),
+        "step": ("rosd", _command("rosd", 65.0)),
+        "ahead": ("rosd", _command("rosd", 120.0)),
+        "repeated": ("rosd", _command("rosd", 60.0)),
+    }
+    for sc, payload in bad.values():
+        on(sc, payload)
+    on("rosd", _command("rosd", 0.0), with_attachment=False)  # an earlier step: repeated too
+    zero = cv.attitude_command(120.0, "rosd", np.zeros(3))
+    zero.quaternion.w = 0.0
+    intake.carried(120.0)
+    on("rosd", messages.serialize(zero, messages.ATTITUDE_COMMAND))
+    assert len(put) == 2  # nothing more reached the bus
+    counters = intake.stats()
+    assert counters["commands"] == 2 and counters["commands_refused"] == 8
+    assert {r: counters[f"commands_refused.{r}"] for r in REASONS} == {
+        **dict.fromkeys(REASONS, 1),
+        "repeated": 2,
+    }
+    named = "GID 00.01.02.03.04.05.06.07.08.09.0a.0b.0c.0d.0e.0f"
+    assert said[0] == (
+        f"refused a command on /lqr/cmd_attitude from {named}: lqr is not flown from ROS 2 "
+        "(flown: ['rosd']) (not_ros2 #1)"
+    )
+    assert all(line.startswith("refused a command on /") for line in said) and len(said) == 8
+    assert "from a publisher without rmw_zenoh's attachment" in said[6]
+    assert "is no rotation" in said[7]

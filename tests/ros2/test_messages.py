@@ -22,6 +22,7 @@ JAZZY_HASHES = {
     messages.DIAGNOSTICS: (
         "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e"
     ),
+    messages.ALTITUDE: "RIHS01_4c0296af86e01e562e9e0405d138a01537247580076c58ea38d7923ac1045897",
 }
 """The hashes a ROS 2 Jazzy installation reports for these types (``ros2 topic info -v``),
 as published by other ROS 2 implementations that pin them."""
@@ -64,6 +65,7 @@ def test_the_design_documents_example_type_has_its_hash_and_dds_name() -> None:
         (messages.GAINS, "std_msgs::msg::dds_::Float64MultiArray_"),
         (messages.TF, "tf2_msgs::msg::dds_::TFMessage_"),
         (messages.DIAGNOSTICS, "diagnostic_msgs::msg::dds_::DiagnosticArray_"),
+        (messages.ALTITUDE, "geometry_msgs::msg::dds_::PointStamped_"),
     ],
 )
 def test_dds_type_names(ros_type: str, dds: str) -> None:

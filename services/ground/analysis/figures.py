@@ -148,7 +148,7 @@ def gains_figure(canvas: Canvas) -> None:
         sharex=True,
         gridspec_kw={**MARGINS, "top": 0.89, "hspace": 0.25, "wspace": 0.32},
     )
-    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller != "lqr"]
+    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller == "ddvi"]
     for c, ax in enumerate(axes.flat):
         refs: list[float] = []
         for j, s in learners:

@@ -186,6 +186,7 @@ def deputy_metrics(
     ``K_lqr`` and ``cannot_hold`` (why it cannot hold its slot; "" when it can) are computed
     from ``dep`` when not given."""
     lqr = deputy.controller == "lqr"
+    learner = deputy.controller == "ddvi"  # a ROS 2-flown deputy's gains are its node's own
     period = orbit_period(dep)
     learned = outcome.source is not None and outcome.source not in NOT_LEARNED
     scored = lqr or learned
@@ -198,7 +199,7 @@ def deputy_metrics(
     ey = np.asarray(outcome.along_track_error, float)
     t = np.asarray(outcome.t, float)
     notes = [cannot_hold] if cannot_hold else []
-    if not scored:
+    if learner and not scored:
         notes.append(short_note(outcome.log[-1]) if outcome.log else "no learning attempt")
     return {
         "completed": bool(outcome.completed),
@@ -206,9 +207,9 @@ def deputy_metrics(
         "max_along_track_error_last_orbit_m": float(ey[t >= t[-1] - period].max())
         if len(ey)
         else None,
-        "learned": None if lqr else learned,
+        "learned": learned if learner else None,
         "learned_at_orbits": None
-        if lqr or not outcome.learned_at
+        if not learner or not outcome.learned_at
         else float(outcome.learned_at[0] / period),
         "gain_error": scored_gain_error(outcome.K, K_true) if scored else None,
         "gain_error_vs_lqr": scored_gain_error(outcome.K, K_lqr) if learned else None,

@@ -4,7 +4,8 @@ time, with the frames of docs/ros2.md.  No bus and no Zenoh here: bus messages i
 messages out (``services.ros2.conversions`` builds them).
 
 - ``/clock`` (``rosgraph_msgs/msg/Clock``) from the environment's ``clock``;
-- ``/<sc>/odom`` (``nav_msgs/msg/Odometry``) from ``nav/<sc>/state``, the navigated state;
+- ``/<sc>/odom`` (``nav_msgs/msg/Odometry``) from ``nav/<sc>/state``, the navigated state,
+  and ``/<sc>/altitude`` (``geometry_msgs/msg/PointStamped``) its altitude;
 - ``/<sc>/truth/odom`` (``nav_msgs/msg/Odometry``) from the ``truth/*`` of one time, the true
   relative state;
 - ``/<sc>/commanded_attitude`` (``geometry_msgs/msg/QuaternionStamped``) from ``cmd/<sc>/att``;
@@ -37,7 +38,15 @@ from services.interface import Message
 from services.model import navigation_state, reference_gains
 from services.ros2 import conversions as cv
 from services.ros2.keys import QoS
-from services.ros2.messages import ATTITUDE_COMMAND, CLOCK, DIAGNOSTICS, GAINS, ODOMETRY, TF
+from services.ros2.messages import (
+    ALTITUDE,
+    ATTITUDE_COMMAND,
+    CLOCK,
+    DIAGNOSTICS,
+    GAINS,
+    ODOMETRY,
+    TF,
+)
 
 NODE_NAME = "ddvi_gateway"
 """The gateway's node name (``ros2 node list``: ``/ddvi_gateway``)."""
@@ -65,11 +74,14 @@ class RosTopic:
 
 
 def deputy_topics(sc: str) -> dict[str, str]:
-    """A deputy's topic names by role: odom, truth, attitude, feedback, feedforward,
-    optimal_feedback, optimal_feedforward."""
+    """A deputy's topic names by role: odom, altitude, truth, attitude, feedback, feedforward,
+    optimal_feedback, optimal_feedforward; and command, what a ROS 2 node commands a deputy
+    flown from ROS 2 on."""
     gains = f"/{sc}/gains/"
     return {
         "odom": f"/{sc}/odom",
+        "altitude": f"/{sc}/altitude",
+        "command": f"/{sc}/cmd_attitude",
         "truth": f"/{sc}/truth/odom",
         "attitude": f"/{sc}/commanded_attitude",
         "feedback": gains + "feedback",
@@ -88,11 +100,13 @@ def ros_topics(dep: Deployment, optimal: dict[str, bool] | None = None) -> list[
         names, sc = deputy_topics(d.name), d.name
         if "odom" in kinds:
             out.append(RosTopic(names["odom"], ODOMETRY, "odom", sc))
+        if "altitude" in kinds:
+            out.append(RosTopic(names["altitude"], ALTITUDE, "altitude", sc))
         if "truth" in kinds:
             out.append(RosTopic(names["truth"], ODOMETRY, "truth", sc))
         if "attitude" in kinds:
             out.append(RosTopic(names["attitude"], ATTITUDE_COMMAND, "attitude", sc))
-        if "gains" in kinds:
+        if "gains" in kinds and d.controller != "ros2":  # a ROS 2 node's gains are its own
             roles = ["feedback", "feedforward"]
             if (optimal or {}).get(sc, False):
                 roles += ["optimal_feedback", "optimal_feedforward"]
@@ -123,7 +137,7 @@ class Translator:
         self.names = {sc: deputy_topics(sc) for sc in self.deputies}
         self.optimal: dict[str, tuple[Any, Any]] = {}
         if "gains" in dep.ros2.topics:
-            for d in dep.deputy:
+            for d in (d for d in dep.deputy if d.controller != "ros2"):
                 K, L = reference_gains(dep, d)
                 if K is not None and L is not None:
                     self.optimal[d.name] = (cv.gains_message(K, _K_LABELS), L)
@@ -160,11 +174,16 @@ class Translator:
         return self.names[sc]
 
     def _nav(self, msg: Message) -> list[Out]:
-        topic, body = self._deputy(msg)["odom"], msg.body
-        if not self.wanted(topic):
-            return []
-        odometry = cv.odometry_message(msg.t, body["sc"], body["x_hill"], covariance=body["cov"])
-        return [(topic, odometry)]
+        names, body = self._deputy(msg), msg.body
+        out: list[Out] = []
+        if self.wanted(topic := names["odom"]):
+            odometry = cv.odometry_message(
+                msg.t, body["sc"], body["x_hill"], covariance=body["cov"]
+            )
+            out.append((topic, odometry))
+        if self.wanted(topic := names["altitude"]):
+            out.append((topic, cv.altitude_message(msg.t, body["sc"], body["altitude"])))
+        return out
 
     def _command(self, msg: Message) -> list[Out]:
         topic, body = self._deputy(msg)["attitude"], msg.body

@@ -11,7 +11,8 @@ session: what crosses to it is what the gateway publishes, nothing else.
 its data key (``<domain>/<topic>/<DDS type>/<RIHS01 hash>``) and its GID; ``RosPublisher``
 puts each CDR payload with rmw_zenoh's attachment (its sequence number from 1, the wall clock's
 time, the GID) and knows whether any subscriber matches it, so that nothing is converted for a
-topic nobody reads.
+topic nobody reads.  A subscription is its token (``MS``, what ROS 2 tools list) and a Zenoh
+subscriber on the data keys it reads (``listen``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import itertools
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -156,26 +157,39 @@ class RosNode:
         self._ids = itertools.count(1)  # entity ids within the node's session
         self._lock = threading.Lock()
         self.publishers: dict[str, RosPublisher] = {}
+        self._declared: list[Any] = []  # subscriptions' tokens and Zenoh subscribers
         self._token = session.liveliness().declare_token(node_token(self.node))
+
+    def _endpoint(self, kind: EntityKind, topic: str, ros_type: str, qos: QoS) -> Endpoint:
+        with self._lock:
+            entity_id = next(self._ids)
+        return Endpoint(
+            self.node, entity_id, kind, topic, dds_type_name(ros_type), type_hash(ros_type), qos
+        )
 
     def publisher(self, topic: str, ros_type: str, qos: QoS) -> RosPublisher:
         """Declare a publisher of ``ros_type`` on ``topic`` (fully qualified) with ``qos``."""
-        with self._lock:
-            entity_id = next(self._ids)
-        endpoint = Endpoint(
-            self.node,
-            entity_id,
-            EntityKind.PUBLISHER,
-            topic,
-            dds_type_name(ros_type),
-            type_hash(ros_type),
-            qos,
-        )
+        endpoint = self._endpoint(EntityKind.PUBLISHER, topic, ros_type, qos)
         publisher = self.publishers[topic] = RosPublisher(self.session, endpoint, ros_type)
         return publisher
 
+    def subscription(self, topic: str, ros_type: str, qos: QoS) -> Endpoint:
+        """Announce a subscription of ``ros_type`` on ``topic`` (its ``MS`` token); its samples
+        come through ``listen``."""
+        endpoint = self._endpoint(EntityKind.SUBSCRIPTION, topic, ros_type, qos)
+        self._declared.append(self.session.liveliness().declare_token(endpoint_token(endpoint)))
+        return endpoint
+
+    def listen(self, key_expr: str, handler: Callable[[zenoh.Sample], None]) -> None:
+        """Hand every sample put on ``key_expr`` (data keys, wildcards allowed) to
+        ``handler``, on a Zenoh thread."""
+        self._declared.append(self.session.declare_subscriber(key_expr, handler))
+
     def close(self) -> None:
         """Withdraw every entity, then the node."""
+        for declared in reversed(self._declared):
+            declared.undeclare()
+        self._declared.clear()
         for publisher in self.publishers.values():
             publisher.close()
         self.publishers.clear()

@@ -4,12 +4,16 @@ Inputs:  clock; truth/<craft> (truth), nav/<sc>/state (nav), cmd/<sc>/att (cmd),
          ctrl/<sc>/gains (gains), as its ``[ros2].topics`` ask; ctrl/<sc>/status (status),
          stats/<service> (stats), log/<service> (log) and every service's liveliness for
          /diagnostics.
+         On the ROS 2 side, /<sc>/cmd_attitude of the deputies flown from ROS 2
+         (``services.ros2.gateway.commands``).
 Outputs: on the ROS 2 side, the topics of ``services.ros2.gateway.exposure``; on the bus
-         stats/ros2-gateway (published, published.<ROS 2 topic>, refused, publish_errors,
-         unmatched) and log/ros2-gateway.
+         cmd/<sc>/att (cmd) of the deputies flown from ROS 2, stats/ros2-gateway (published,
+         published.<ROS 2 topic>, refused, publish_errors, unmatched, commands,
+         commands_refused, commands_refused.<reason>) and log/ros2-gateway.
 
 It is one more bus service, with its own credential and the access rules the topology gives it
-(it puts only its stats and log on the bus), hosted like every flight service
+(it puts only its stats, its log and the commands of the deputies flown from ROS 2 on the bus),
+hosted like every flight service
 (``services.flight.host``: a reactive component).  Its ROS 2 side is a second Zenoh session
 (``services.ros2.gateway.ros_side``) at the deployment's ``ros2.endpoint``, where it is the ROS 2
 node ``/ddvi_gateway``.  It never holds the mission up: nothing waits for it once it is alive,
@@ -41,6 +45,7 @@ from services.interface import (
     truth_topic,
 )
 from services.ros2.conversions import diagnostic_array
+from services.ros2.gateway.commands import CommandIntake
 from services.ros2.gateway.exposure import DIAGNOSTICS_TOPIC, NODE_NAME, Translator
 from services.ros2.gateway.health import Health
 from services.ros2.gateway.ros_side import RosNode, RosSideError, ros_node
@@ -66,7 +71,7 @@ def bus_inputs(kinds: set[str]) -> tuple[Listen | Watch, ...]:
     inputs: list[Listen | Watch] = [Listen(CLOCK, "clock"), Watch("*")]
     if kinds & {"truth", "tf"}:
         inputs.append(Listen(truth_topic("*"), "truth"))
-    if "odom" in kinds:
+    if kinds & {"odom", "altitude"}:
         inputs.append(Listen(nav_state_topic("*"), "nav"))
     if "attitude" in kinds:
         inputs.append(Listen(command_topic("*"), "cmd"))
@@ -109,6 +114,9 @@ class GatewayService:
         self.t = 0.0  # the newest clock's time
         self.counters: dict[str, int] = {"published": 0, "refused": 0, "publish_errors": 0}
         self.counters.update({f"published.{name}": 0 for name in self.publishers})
+        self.intake: CommandIntake | None = None
+        if any(d.controller == "ros2" for d in dep.deputy):  # ROS 2 flies them
+            self.intake = CommandIntake(dep, node, self.publish_command, self.say)
         where = "joined the Zenoh router at" if role == "joined" else "serves (no router answered)"
         ctx.log(
             "info",
@@ -140,6 +148,8 @@ class GatewayService:
             self.t = max(self.t, msg.t)
             self.ctx.bus.pump(msg.t)  # what a link held until now (a deployment's [[link]])
             self.health.final = self.health.final or bool(msg.body["final"])
+        if self.intake is not None and msg.schema in ("clock", "nav"):
+            self.intake.carried(msg.t)  # before ROS 2 can see it: a node may command up to it
         if msg.schema in HEALTH_SCHEMAS:
             if self.health.take(msg):
                 self.publish_health(msg.t)
@@ -166,7 +176,16 @@ class GatewayService:
     # -- publishing ---------------------------------------------------------------------------
 
     def stats(self) -> dict[str, int]:
-        return {**self.counters, "unmatched": self.translator.unmatched}
+        commands = self.intake.stats() if self.intake is not None else {}
+        return {**self.counters, "unmatched": self.translator.unmatched, **commands}
+
+    def publish_command(self, sc: str, sigma: Any, for_t: float) -> None:
+        """A command from ROS 2 that passed every check, on the bus (``CommandIntake``)."""
+        body = {"sc": sc, "sigma": sigma, "for_t": for_t}
+        self.ctx.bus.publish(command_topic(sc), "cmd", body, for_t)
+
+    def say(self, text: str) -> None:
+        self.ctx.log("warning", text, self.t)
 
     def publish(self, topic: str, message: Any) -> None:
         """Put one ROS 2 message; a failure is counted and said, never raised."""
