@@ -41,7 +41,7 @@ import numpy as np
 from ddvi_core.constants import R_EARTH
 from ddvi_core.models import drag_allocation
 from services.config import load_deployment
-from services.model import IN_PLANE, duration, exostate, lqr_gains
+from services.model import IN_PLANE, duration, exostate, lqr_gains, on_grid
 
 CLOCK, ODOMETRY = "rosgraph_msgs/msg/Clock", "nav_msgs/msg/Odometry"
 POINT, COMMAND = "geometry_msgs/msg/PointStamped", "geometry_msgs/msg/QuaternionStamped"
@@ -91,19 +91,29 @@ class LqrNode:
             self.fly()
 
     def on_odom(self, msg: Any) -> None:
+        t = seconds(msg.header.stamp)
+        if not on_grid(t, self.fsw):
+            return  # a sample between steps: no step flies on it
         pose, twist = msg.pose.pose.position, msg.twist.twist.linear  # identity orientation
         state = np.array([pose.x, pose.y, pose.z, twist.x, twist.y, twist.z])
         with self.lock:
-            self.states[seconds(msg.header.stamp)] = state[list(IN_PLANE)]
+            self.states[t] = state[list(IN_PLANE)]
             self.fly()
 
     def on_altitude(self, msg: Any) -> None:
+        t = seconds(msg.header.stamp)
+        if not on_grid(t, self.fsw):
+            return
         with self.lock:
-            self.altitudes[seconds(msg.header.stamp)] = -msg.point.x
+            self.altitudes[t] = -msg.point.x
             self.fly()
 
     def fly(self) -> None:
-        """Command every step whose clock and navigation sample are in (the lock held)."""
+        """Command every step whose clock and navigation sample are in (the lock held); a
+        node that came late (in real time) flies from the first step it has a sample for."""
+        later = [t for t in self.states if t > self.step]
+        if self.step not in self.states and later:
+            self.step = min(later)
         while (
             not self.done.is_set()
             and self.clock >= self.step - 1e-6

@@ -59,6 +59,7 @@ RUN_TOPICS = {
         for sc in ("lqr", "ddvi")
         for name, ros_type in (
             (f"/{sc}/odom", messages.ODOMETRY),
+            (f"/{sc}/altitude", messages.ALTITUDE),
             (f"/{sc}/truth/odom", messages.ODOMETRY),
             (f"/{sc}/commanded_attitude", messages.ATTITUDE_COMMAND),
             (f"/{sc}/gains/feedback", messages.GAINS),

@@ -19,8 +19,8 @@ hosted like every flight service
 node ``/ddvi_gateway``.  It never holds the mission up: nothing waits for it once it is alive,
 a ROS 2 topic without a subscriber costs no conversion, a slow ROS 2 subscriber loses samples.
 A bus message that has no ROS 2 form is refused, counted and logged, and the gateway goes on.
-It ends once the mission's final clock has come and every flight service has left (their last
-messages are in), or ``END_GRACE`` after the final clock.
+It ends once the mission's final clock has come, every flight service has left and every
+deputy's final navigation sample is carried, or ``END_GRACE`` after the final clock.
 """
 
 from __future__ import annotations
@@ -111,6 +111,11 @@ class GatewayService:
         self.health = Health(dep.services)
         self.flight = {s for s in dep.services if s not in ("monitor", ROS2_GATEWAY)}
         self.alive: set[str] = set()
+        # each deputy's newest navigation sample carried, when it carries them: a service's
+        # liveliness and its messages come on different subscriptions, so its token can be
+        # seen gone before its last sample is in
+        navigated = any(t.kind in ("odom", "altitude") for t in topics)
+        self.navigated = dict.fromkeys([d.name for d in dep.deputy] if navigated else [], -1.0)
         self.t = 0.0  # the newest clock's time
         self.counters: dict[str, int] = {"published": 0, "refused": 0, "publish_errors": 0}
         self.counters.update({f"published.{name}": 0 for name in self.publishers})
@@ -150,6 +155,8 @@ class GatewayService:
             self.health.final = self.health.final or bool(msg.body["final"])
         if self.intake is not None and msg.schema in ("clock", "nav"):
             self.intake.carried(msg.t)  # before ROS 2 can see it: a node may command up to it
+        if msg.schema == "nav" and msg.body["sc"] in self.navigated:
+            self.navigated[msg.body["sc"]] = max(self.navigated[msg.body["sc"]], msg.t)
         if msg.schema in HEALTH_SCHEMAS:
             if self.health.take(msg):
                 self.publish_health(msg.t)
@@ -166,7 +173,11 @@ class GatewayService:
         self.ctx.bus.pump()  # in real time the links release by the wall clock
 
     def done(self, final_t: float | None) -> bool:
-        return final_t is not None and not (self.alive & self.flight)
+        """The final clock is in, every flight service has left, and every deputy's final
+        navigation sample is carried (a sample lost on its link: the host's grace ends it)."""
+        if final_t is None or self.alive & self.flight:
+            return False
+        return all(t >= final_t - 1e-6 for t in self.navigated.values())
 
     def finish(self) -> tuple[float, dict[str, int]]:
         self.health.final = True
