@@ -13,11 +13,11 @@ Outputs: on the ROS 2 side, the topics of ``services.ros2.gateway.exposure``; on
 
 It is one more bus service, with its own credential and the access rules the topology gives it
 (it puts only its stats, its log and the commands of the deputies flown from ROS 2 on the bus),
-hosted like every flight service
-(``services.flight.host``: a reactive component).  Its ROS 2 side is a second Zenoh session
-(``services.ros2.gateway.ros_side``) at the deployment's ``ros2.endpoint``, where it is the ROS 2
-node ``/ddvi_gateway``.  It never holds the mission up: nothing waits for it once it is alive,
-a ROS 2 topic without a subscriber costs no conversion, a slow ROS 2 subscriber loses samples.
+hosted like every flight service (``services.flight.host``: a reactive component).  Its ROS 2
+side is a second Zenoh session (``services.ros2.gateway.ros_side``) at the deployment's
+``ros2.endpoint``, where it is the ROS 2 node ``/ddvi_gateway``.  What it carries never holds
+the mission up (lock-step waits for it only as the commander of a deputy flown from ROS 2): a
+ROS 2 topic without a subscriber costs no conversion, a slow ROS 2 subscriber loses samples.
 A bus message that has no ROS 2 form is refused, counted and logged, and the gateway goes on.
 It ends once the mission's final clock has come, every flight service has left and every
 deputy's final navigation sample is carried, or ``END_GRACE`` after the final clock.
