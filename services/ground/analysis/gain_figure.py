@@ -79,7 +79,7 @@ def references(series: list[DeputySeries]) -> list[Reference]:
     named only when the learners' references differ."""
     out: list[Reference] = []
     seen: list[tuple[FloatArray, FloatArray]] = []
-    learners = [s for s in series if s.deputy.controller != "lqr"]
+    learners = [s for s in series if s.deputy.controller == "ddvi"]
     distinct = {
         (tuple(np.round(s.K_lqr.ravel(), 12)), tuple(np.round(_optimum(s)[0].ravel(), 12)))
         for s in learners
@@ -128,7 +128,7 @@ def gains_figure(canvas: Canvas) -> Figure:
     k_axes = [first, *(fig.add_subplot(k_grid[c], sharex=first) for c in range(1, len(K_NAMES)))]
     l_axes = [fig.add_subplot(l_grid[c], sharex=first) for c in range(len(L_NAMES))]
     err = fig.add_subplot(rows[2], sharex=first)
-    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller != "lqr"]
+    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller == "ddvi"]
     refs = references(canvas.series)
     for which, axes, names, units in (
         ("K", k_axes, K_NAMES, K_UNITS),

@@ -109,7 +109,7 @@ def _deputy_summary(
     out: dict[str, Any] = {
         "controller": d.controller,
         # a learner's learning.method (None for LQR)
-        "learning_method": None if d.controller == "lqr" else getattr(d.learning, "method", None),
+        "learning_method": getattr(d.learning, "method", None) if d.controller == "ddvi" else None,
         "y_ref": d.y_ref,
         "samples": len(s.t),
         "final_along_track_error_m": m["final_along_track_error_m"],
@@ -139,7 +139,7 @@ def _deputy_summary(
         out.update(max_radial_last_orbit_m=float(ax[last].max()), final_radial_m=float(ax[-1]))
     if last_gains is not None:
         out["gains"] = {"K": last_gains.K, "L": last_gains.L, "source": last_gains.source}
-        if d.controller != "lqr":
+        if d.controller == "ddvi":
             switches = learned_switches(craft.gains)[1:]
             out["relearned_at_orbits"] = [t / data.period for t in switches]
             # every return to the old gains after re-learning failed (LearningCycle.learning_failed)

@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import tomli_w
 import zenoh
 
 from services.bus import Bus, BusSettings, error_text, open_session, queue_handler
@@ -40,7 +41,7 @@ from services.ground.launch.netns import hub_address
 from services.ground.launch.processes import ServiceProcesses
 from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.launch.supervisor import Supervisor
-from services.interface.topics import fault_topic
+from services.interface.topics import ROS2_GATEWAY, fault_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
@@ -61,8 +62,13 @@ class Launcher:
         quiet: bool = False,
         folder_mode: int | None = None,
         live: str | None = None,
+        table: dict[str, Any] | None = None,
     ) -> None:
         self.dep = dep
+        # the deployment's table when a command-line option changed it from its file's
+        # (--ros2): the run folder keeps it as the deployment the run flies, and the services
+        # read it there
+        self.table = table
         # HOST:PORT the monitor serves the live view on (services.ground.monitoring.live)
         self.live = live
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -130,7 +136,12 @@ class Launcher:
             made = True
             (self.out / "logs").mkdir()
             self._hub_settings()  # bus.json and the credentials, each a new file
-            if self.dep.path:  # what `ddvi fault` checks a fault against
+            if self.table is not None:
+                text = tomli_w.dumps(self.table)
+                write_private(self.out / DEPLOYMENT_FILE, text, mode=0o644)
+                self.dep = dataclasses.replace(self.dep, path=str(self.out / DEPLOYMENT_FILE))
+                self.services.dep = self.supervisor.dep = self.dep
+            elif self.dep.path:  # what `ddvi fault` checks a fault against
                 text = Path(self.dep.path).read_text()
                 write_private(self.out / DEPLOYMENT_FILE, text, mode=0o644)
         except OSError as exc:
@@ -208,6 +219,11 @@ class Launcher:
             self.say(
                 f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
                 "WebSocket; docs/live.md)"
+            )
+        if (ros2 := self.dep.ros2).enabled:
+            self.say(
+                f"ROS 2 on {ros2.endpoint}, domain {ros2.domain_id}: {ROS2_GATEWAY} joins the "
+                "Zenoh router there, or serves it (docs/ros2.md)"
             )
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()

@@ -228,7 +228,7 @@ def unlearned_points(
         dep = deployment_from_table(table)
         for d in dep.deputy:
             at = d.learning.learn_at_orbits
-            if d.controller != "lqr" and at >= dep.run.orbits:
+            if d.controller == "ddvi" and at >= dep.run.orbits:
                 out.append(
                     (
                         point,
