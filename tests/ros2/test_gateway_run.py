@@ -144,6 +144,9 @@ def test_zenoh_ros2_sdk_lists_the_runs_topics_and_decodes_them_equal_to_the_reco
             )
         options = ("--ros2", f"tcp/127.0.0.1:{free_port}")
         status, said, out = fly(_deployment(tmp_path), tmp_path / "runs", during, options)
+        # the gateway's final diagnostics left before the run ended; its delivery to the SDK's
+        # callback may still be under way on a loaded machine
+        wait_until(lambda: _finished(received["/diagnostics"]))
     finally:
         for subscriber in subscribers:
             subscriber.close()
@@ -181,6 +184,14 @@ def test_zenoh_ros2_sdk_lists_the_runs_topics_and_decodes_them_equal_to_the_reco
     assert ("published./lqr/odom", str(stats["published./lqr/odom"])) in (
         last["ddvi/ros2-gateway"].values
     )
+
+
+def _finished(diagnostics: list[Any]) -> bool:
+    """Whether the newest diagnostics array received says the environment has finished."""
+    if not diagnostics:
+        return False
+    status = {s.name: s for s in cv.statuses_from_diagnostics(diagnostics[-1])}
+    return getattr(status.get("ddvi/environment"), "message", None) == "finished"
 
 
 def _samples(session: zenoh.Session, key: str, into: list[Any]) -> Any:
