@@ -41,6 +41,7 @@ BENCHMARKS: dict[str, str] = {
     "basilisk": "benchmarks.mission:bench_basilisk",
     "flight": "benchmarks.flight:bench_flight",
     "live": "benchmarks.live:bench_live",
+    "ros2": "benchmarks.ros2:bench_ros2",
 }
 
 
