@@ -114,8 +114,12 @@ def test_an_address_is_host_and_port_and_anything_else_says_what_to_give() -> No
     assert parse_address("127.0.0.1:8765") == LiveAddress("127.0.0.1", 8765)
     assert parse_address("9000") == LiveAddress("127.0.0.1", 9000)
     assert parse_address("[::1]:9000").url == "ws://[::1]:9000"
-    for bad in ("deployments/rendezvous.toml", "host:0", "host:70000", ":x"):
-        with pytest.raises(LiveError, match="give HOST:PORT"):
+    # the URL the live view says it serves on, pasted back
+    assert parse_address("ws://127.0.0.1:8765") == LiveAddress("127.0.0.1", 8765)
+    assert parse_address("WS://localhost:9000/") == LiveAddress("localhost", 9000)
+    assert parse_address("ws://[::1]:9000").url == "ws://[::1]:9000"
+    for bad in ("deployments/rendezvous.toml", "host:0", "host:70000", ":x", "ws://", "http://h:1"):
+        with pytest.raises(LiveError, match="give HOST:PORT or ws://HOST:PORT"):
             parse_address(bad)
 
 

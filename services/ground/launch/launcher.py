@@ -25,6 +25,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -40,11 +41,23 @@ from services.ground.launch.netns import hub_address
 from services.ground.launch.processes import ServiceProcesses
 from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.launch.supervisor import Supervisor
-from services.interface.topics import fault_topic
+from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
+from services.interface.topics import fault_topic, log_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
 REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
+
+
+def _on_client(watched: threading.Event) -> Any:
+    """A handler of the monitor's log that sets ``watched`` when it says its live view has
+    its first client."""
+
+    def handler(_topic: str, msg: Any) -> None:
+        if msg.body["text"].startswith(CLIENT_JOINED):
+            watched.set()
+
+    return handler
 
 
 def free_port() -> int:
@@ -61,10 +74,16 @@ class Launcher:
         quiet: bool = False,
         folder_mode: int | None = None,
         live: str | None = None,
+        rate: float = 0.0,
+        wait_for_client: bool = False,
     ) -> None:
         self.dep = dep
         # HOST:PORT the monitor serves the live view on (services.ground.monitoring.live)
         self.live = live
+        # lock-step's pace, simulated seconds per wall second at most (0: as fast as it goes)
+        self.rate = rate
+        # the first step waits for the live view's first client
+        self.wait_for_client = wait_for_client and live is not None
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -72,11 +91,13 @@ class Launcher:
         self.folder_mode = FOLDER_MODE if folder_mode is None else folder_mode
         self.port = dep.bus.port or free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
-        self.services = ServiceProcesses(dep, self.run, self.out, self.hub, self.port, quiet, live)
+        self.services = ServiceProcesses(
+            dep, self.run, self.out, self.hub, self.port, quiet, live, rate
+        )
         self.quiet = quiet
         self.signals = lifecycle.StopSignals()
         self.supervisor = Supervisor(
-            dep, self.services, self.say, lambda: self.signals.received is not None
+            dep, self.services, self.say, lambda: self.signals.received is not None, rate
         )
 
     def say(self, text: str, error: bool = False) -> None:
@@ -204,23 +225,49 @@ class Launcher:
         # all at once: a service declares itself alive, and publishes, only once it sees the
         # monitor (services.flight.runtime), so that the recording has everything from the
         # first message on, and the environment flies once it sees every other service alive
+        url = parse_address(self.live).url if self.live else ""
         if self.live:
             self.say(
-                f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
-                "WebSocket; docs/live.md)"
+                f"live view on {url} (Foxglove: Open connection, Foxglove WebSocket; docs/live.md)"
             )
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
-            for name in [*first, "environment"]:
+            watched = threading.Event()
+            if self.wait_for_client:  # the monitor says so on its log topic
+                bus.subscribe(log_topic("monitor"), _on_client(watched), expected_schema="log")
+            for name in first if self.wait_for_client else [*first, "environment"]:
                 self.services.start(name)
             if (status := self._await(session, first)) is not None:
                 return status
             self.say(f"{len(first)} services alive in {time.monotonic() - started:.1f} s")
+            if self.wait_for_client:
+                self.say(f"waiting for a client of {url}: the mission flies once one subscribes")
+                if (status := self._await_client(watched)) is not None:
+                    return status
+                self.services.start("environment")
             status = self.supervisor.watch(bus, faults)
             if status is not None:
                 return status
             return self._await_report(self.services["monitor"].popen, started)
+
+    def _await_client(self, watched: threading.Event) -> int | None:
+        """Wait, as long as it takes, for the live view's first client (``watched``): None
+        once one subscribes; the exit status of a stop signal or of a service that ended."""
+        while not watched.wait(0.1):
+            if self.signals.received is not None:
+                return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
+            if (ended := self.services.exited()) is not None:
+                name, rc = ended
+                log = self.out / "logs" / f"{name}.log"
+                self.say(
+                    f"{name} exited with status {rc} while waiting for a client: "
+                    f"{lifecycle.log_reason(log)} (log: {log})",
+                    error=True,
+                )
+                return lifecycle.EXIT_FAILED
+        self.say("a client is watching: the mission flies")
+        return None
 
     def _after_stop(self, status: int) -> int:
         """Once every service is stopped: a stop signal's status (and whether the partial
