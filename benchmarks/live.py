@@ -27,6 +27,7 @@ from benchmarks.foxglove_client import FoxgloveClient
 from benchmarks.mission import _clock_span, _row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
+from services.ground.monitoring.scene import TRANSFORMS_TOPIC
 from services.ground.storage.recording import RECORDING
 
 TARGET = "≤ 1.10"
@@ -44,11 +45,15 @@ SHOWN = "the layout's channels"
 
 
 def layout_topics(path: Path = LAYOUT) -> set[str]:
-    """The topics a Foxglove layout's panels read (each message path's topic)."""
+    """The topics a Foxglove layout's panels read (each message path's topic, and each topic
+    a 3D panel shows, with the transforms it places them by)."""
     found: set[str] = set()
 
     def walk(node: Any) -> None:
         if isinstance(node, dict):
+            if "followTf" in node:  # a 3D panel: its topics, in the frames the transforms give
+                found.update(node.get("topics", {}))
+                found.add(TRANSFORMS_TOPIC)
             for key, value in node.items():
                 if key in ("value", "topicPath") and isinstance(value, str):
                     found.add(value.partition(".")[0])

@@ -19,7 +19,7 @@ from services.exit_status import EXIT_FAIL, EXIT_USAGE
 
 def cmd_run(args: argparse.Namespace) -> int:
     from services.config import DeploymentError, load_deployment
-    from services.ground.launch.launcher import Launcher
+    from services.ground.launch.launcher import Launcher, Viewing
 
     if args.output is not None and not args.output.strip():
         print(
@@ -53,14 +53,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if (why := _pace_refused(args, dep.run.mode, dep.run.rate)) is not None:
         print(f"ddvi run: {why}", file=sys.stderr)
         return EXIT_USAGE
+    viewing = Viewing(live, args.rate or 0.0, args.wait_for_client and live is not None)
     launcher = Launcher(
-        dep,
-        out_root=args.output,
-        quiet=args.quiet,
-        folder_mode=args.folder_mode,
-        live=live,
-        rate=args.rate or 0.0,
-        wait_for_client=args.wait_for_client,
+        dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode, viewing=viewing
     )
     return launcher.execute()
 

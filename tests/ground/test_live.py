@@ -25,6 +25,7 @@ from benchmarks.foxglove_client import SUBPROTOCOL, FoxgloveClient, Received
 from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment
 from services.ground.monitoring.live import (
+    DEPLOYMENT_TOPIC,
     LIVE_GAINS_SCHEMA,
     LiveServer,
     live_gains_topic,
@@ -54,6 +55,7 @@ name = "ddvi"
 controller = "ddvi"
 learning = { learn_at_orbits = 1.0, interval = 120.0, max_iterations = 20000 }
 """
+SCENE_ESTIMATES = ("scene/lqr/estimate", "scene/ddvi/estimate")
 # every topic of SHORT's topology (docs/interface.md) and the schema it carries
 SERVICES = ["monitor", "nav-lqr", "ctrl-lqr", "nav-ddvi", "ctrl-ddvi", "environment", "launcher"]
 TOPOLOGY_OF_SHORT = {
@@ -84,11 +86,15 @@ def schema_of(channel: dict[str, Any]) -> dict[str, Any]:
 
 def check_channels(advertised: dict[str, dict[str, Any]], liveliness: bool) -> None:
     """Every topic of the topology advertised with the recording's schema; the others are
-    the live view's gains against K* and (from the monitor) each service's liveliness."""
+    the live view's gains against K*, the deployment, the 3D scene and (from the monitor) each
+    service's liveliness."""
     for topic, schema in TOPOLOGY_OF_SHORT.items():
         assert advertised[topic]["schemaName"] == f"ddvi.{schema}", topic
         assert schema_of(advertised[topic]) == message_json_schema(SCHEMAS[schema]), topic
     extra = {live_gains_topic(d): "ddvi.live_gains" for d in ("lqr", "ddvi")}
+    extra |= {DEPLOYMENT_TOPIC: "ddvi.deployment"}
+    extra |= {"scene/transforms": "foxglove.FrameTransforms"}
+    extra |= {t: "foxglove.SceneUpdate" for t in ("scene/formation", *SCENE_ESTIMATES)}
     if liveliness:
         extra |= {f"alive/{s}": "ddvi.alive" for s in SERVICES if s != "launcher"}
     assert {t: c["schemaName"] for t, c in advertised.items() if t not in TOPOLOGY_OF_SHORT} == (
@@ -101,9 +107,12 @@ def check_channels(advertised: dict[str, dict[str, Any]], liveliness: bool) -> N
 
 def check_times(messages: list[Received]) -> None:
     """Every bus message's time is its simulation time t (the recording's JSON); the live
-    gains carry their gains message's."""
+    gains carry their gains message's, the deployment t = 0, and the scene the time of the
+    step it draws (its own stamps: ``test_live_scene``)."""
     for m in messages:
-        if not m.topic.startswith("alive/"):
+        if m.topic == DEPLOYMENT_TOPIC:
+            assert m.timestamp == 0
+        elif not m.topic.startswith(("alive/", "scene/")):
             assert m.timestamp == ns(m.json()["t"]), m.topic
 
 
@@ -319,8 +328,9 @@ def test_ddvi_run_live_serves_every_topic_at_simulation_time(
     # at least one message of every topic the recording has, each decoding as it does there
     recorded, _ = read_recording(folder / "recording.mcap")
     served = {m.topic for m in client.messages}
-    assert {r.topic for r in recorded if r.topic != "alive/monitor"} <= served
-    first = {m.topic: m.json() for m in reversed(client.messages)}
+    recorded_topics = {r.topic for r in recorded if r.topic != "alive/monitor"}
+    assert recorded_topics <= served
+    first = {m.topic: m.json() for m in reversed(client.messages) if m.topic in recorded_topics}
     for r in recorded:
         if not r.topic.startswith("alive/") and r.data["seq"] == first[r.topic]["seq"]:
             assert r.data == first[r.topic]

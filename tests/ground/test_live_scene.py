@@ -5,6 +5,7 @@ channel's last message sent to a client that subscribes late (the latch)."""
 from __future__ import annotations
 
 import base64
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -14,8 +15,9 @@ import numpy as np
 import pytest
 
 from benchmarks.foxglove_client import FoxgloveClient
+from benchmarks.live import layout_topics
 from ddvi_core.orbit import hill_frame, mrp_to_dcm
-from services.config import deployment_from_table
+from services.config import deployment_from_table, load_deployment
 from services.ground.monitoring.live import LiveServer
 from services.ground.monitoring.live_address import LiveAddress
 from services.ground.monitoring.scene import (
@@ -279,3 +281,16 @@ def test_a_scene_message_the_live_view_serves_decodes_with_the_advertised_schema
             client.close()
     finally:
         live.close()
+
+
+def test_the_layouts_3d_panel_shows_the_scene_of_the_default_mission() -> None:
+    root = Path(__file__).resolve().parents[2]
+    layout = json.loads((root / "docs" / "foxglove-layout.json").read_text())
+    (panel,) = [c for k, c in layout["configById"].items() if k.startswith("3D!")]
+    dep = load_deployment(str(root / "deployments" / "rendezvous.toml"))
+    channels = dict(Scene(dep).channels())
+    assert panel["followTf"] == SCENE_FRAME == panel["layers"]["grid"]["frameId"]
+    assert set(panel["topics"]) == {t for t in channels if t != TRANSFORMS_TOPIC}
+    assert all(channels[t].name == "foxglove.SceneUpdate" for t in panel["topics"])
+    # what a client with the layout subscribes to: the scene and the frames it is placed by
+    assert set(channels) <= layout_topics(root / "docs" / "foxglove-layout.json")

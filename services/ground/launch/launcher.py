@@ -27,6 +27,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,21 +50,40 @@ REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over.
 REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
 
 
-def _on_client(watched: threading.Event) -> Any:
-    """A handler of the monitor's log that sets ``watched`` when it says its live view has
-    its first client."""
+def _live_view(
+    bus: Bus, live: str | None, wait: bool, say: Callable[[str], None]
+) -> tuple[str, threading.Event]:
+    """Say where the live view serves (``live``, HOST:PORT); its URL, and the event set when
+    the monitor says on its log that the live view has its first client (listened to when
+    the first step ``wait``s for it)."""
+    watched = threading.Event()
+    if not live:
+        return "", watched
+    url = parse_address(live).url
+    say(f"live view on {url} (Foxglove: Open connection, Foxglove WebSocket; docs/live.md)")
 
-    def handler(_topic: str, msg: Any) -> None:
+    def on_log(_topic: str, msg: Any) -> None:
         if msg.body["text"].startswith(CLIENT_JOINED):
             watched.set()
 
-    return handler
+    if wait:
+        bus.subscribe(log_topic("monitor"), on_log, expected_schema="log")
+    return url, watched
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+@dataclasses.dataclass(frozen=True)
+class Viewing:
+    """How a person watches the run (``ddvi run --live --rate --wait-for-client``)."""
+
+    live: str | None = None  # HOST:PORT the monitor serves the live view on, or none
+    rate: float = 0.0  # lock-step's simulated seconds per wall second at most; 0: no pace
+    wait_for_client: bool = False  # with ``live``: the first step waits for its first client
 
 
 class Launcher:
@@ -73,17 +93,10 @@ class Launcher:
         out_root: str | None = None,
         quiet: bool = False,
         folder_mode: int | None = None,
-        live: str | None = None,
-        rate: float = 0.0,
-        wait_for_client: bool = False,
+        viewing: Viewing | None = None,
     ) -> None:
         self.dep = dep
-        # HOST:PORT the monitor serves the live view on (services.ground.monitoring.live)
-        self.live = live
-        # lock-step's pace, simulated seconds per wall second at most (0: as fast as it goes)
-        self.rate = rate
-        # the first step waits for the live view's first client
-        self.wait_for_client = wait_for_client and live is not None
+        self.viewing = view = viewing or Viewing()
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -92,12 +105,12 @@ class Launcher:
         self.port = dep.bus.port or free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
         self.services = ServiceProcesses(
-            dep, self.run, self.out, self.hub, self.port, quiet, live, rate
+            dep, self.run, self.out, self.hub, self.port, quiet, view.live, view.rate
         )
         self.quiet = quiet
         self.signals = lifecycle.StopSignals()
         self.supervisor = Supervisor(
-            dep, self.services, self.say, lambda: self.signals.received is not None, rate
+            dep, self.services, self.say, lambda: self.signals.received is not None, view.rate
         )
 
     def say(self, text: str, error: bool = False) -> None:
@@ -199,7 +212,12 @@ class Launcher:
             self.services.exited,
             lambda: self.signals.received is not None,
         )
-        if how == "alive":
+        return self._awaited(how, what, "starting")
+
+    def _awaited(self, how: str, what: Any, doing: str) -> int | None:
+        """None when the wait ended as it should, else the exit status, said (``lifecycle``'s
+        ``await_alive`` and ``await_client``)."""
+        if how in ("alive", "watched"):
             return None
         if how == "stopped":
             return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
@@ -208,7 +226,7 @@ class Launcher:
             log = self.out / "logs" / f"{name}.log"
             tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
             self.say(
-                f"{name} exited with status {rc} while starting; last lines of {log}:"
+                f"{name} exited with status {rc} while {doing}; last lines of {log}:"
                 f"{tail or ' (empty)'}",
                 error=True,
             )
@@ -225,49 +243,28 @@ class Launcher:
         # all at once: a service declares itself alive, and publishes, only once it sees the
         # monitor (services.flight.runtime), so that the recording has everything from the
         # first message on, and the environment flies once it sees every other service alive
-        url = parse_address(self.live).url if self.live else ""
-        if self.live:
-            self.say(
-                f"live view on {url} (Foxglove: Open connection, Foxglove WebSocket; docs/live.md)"
-            )
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
-            watched = threading.Event()
-            if self.wait_for_client:  # the monitor says so on its log topic
-                bus.subscribe(log_topic("monitor"), _on_client(watched), expected_schema="log")
-            for name in first if self.wait_for_client else [*first, "environment"]:
+            wait = self.viewing.wait_for_client
+            url, watched = _live_view(bus, self.viewing.live, wait, self.say)
+            for name in first if wait else [*first, "environment"]:
                 self.services.start(name)
             if (status := self._await(session, first)) is not None:
                 return status
             self.say(f"{len(first)} services alive in {time.monotonic() - started:.1f} s")
-            if self.wait_for_client:
+            if wait:
                 self.say(f"waiting for a client of {url}: the mission flies once one subscribes")
-                if (status := self._await_client(watched)) is not None:
+                stopping = lambda: self.signals.received is not None  # noqa: E731
+                how, what = lifecycle.await_client(watched, self.services.exited, stopping)
+                if (status := self._awaited(how, what, "waiting for a client")) is not None:
                     return status
+                self.say("a client is watching: the mission flies")
                 self.services.start("environment")
             status = self.supervisor.watch(bus, faults)
             if status is not None:
                 return status
             return self._await_report(self.services["monitor"].popen, started)
-
-    def _await_client(self, watched: threading.Event) -> int | None:
-        """Wait, as long as it takes, for the live view's first client (``watched``): None
-        once one subscribes; the exit status of a stop signal or of a service that ended."""
-        while not watched.wait(0.1):
-            if self.signals.received is not None:
-                return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
-            if (ended := self.services.exited()) is not None:
-                name, rc = ended
-                log = self.out / "logs" / f"{name}.log"
-                self.say(
-                    f"{name} exited with status {rc} while waiting for a client: "
-                    f"{lifecycle.log_reason(log)} (log: {log})",
-                    error=True,
-                )
-                return lifecycle.EXIT_FAILED
-        self.say("a client is watching: the mission flies")
-        return None
 
     def _after_stop(self, status: int) -> int:
         """Once every service is stopped: a stop signal's status (and whether the partial

@@ -318,33 +318,41 @@ class Recorder:
             self.not_recorded += 1
             return
         payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
-        assert self._file is not None
-        chunks = self._file.chunks  # written in line, not through _guarded: once a message
-        try:
-            cid = self._channel(topic, schema_name, schema)
-            self.messages += 1
-            self._pending += 1
-            if log_ns > self._pending_ns:
-                self._pending_ns = log_ns
-            self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
-        except OSError as exc:
-            self._settle(chunks)
-            self._cut(exc)
-            return
-        if self._file.chunks != chunks:
-            self._settle(chunks)
+        self._append(topic, schema_name, schema, payload, log_ns, pub_ns, seq, bus=True)
 
     def scene(self, topic: str, schema: Any, data: bytes, log_ns: int, recv_ns: int) -> None:
         """Record a scene message (``services.ground.monitoring.scene``), encoded in its
         Foxglove ``schema``'s encoding, made from what was received at wall time ``recv_ns``;
         dropped, uncounted, once the recording stopped."""
-        if self.stopped is not None or self._file is None:
-            return
-        chunks = self._file.chunks
+        if self.stopped is None and self._file is not None:
+            seq = self.scenes + 1
+            self._append(topic, schema.name, schema, data, log_ns, recv_ns, seq, bus=False)
+
+    def _append(
+        self,
+        topic: str,
+        schema_name: str,
+        schema: dict[str, Any] | Any,
+        payload: bytes,
+        log_ns: int,
+        pub_ns: int,
+        seq: int,
+        bus: bool,
+    ) -> None:
+        """Hand one record to the writer: a bus message (``bus``, counted in ``messages``) or
+        a scene message (``scenes``)."""
+        assert self._file is not None
+        chunks = self._file.chunks  # written in line, not through _guarded: once a message
         try:
-            cid = self._channel(topic, schema.name, schema)
-            self.scenes += 1
-            self._writer.add_message(cid, log_ns, data, recv_ns, self.scenes & 0xFFFFFFFF)
+            cid = self._channel(topic, schema_name, schema)
+            if bus:
+                self.messages += 1
+                self._pending += 1
+                if log_ns > self._pending_ns:
+                    self._pending_ns = log_ns
+            else:
+                self.scenes += 1
+            self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
         except OSError as exc:
             self._settle(chunks)
             self._cut(exc)
