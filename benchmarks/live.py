@@ -2,12 +2,12 @@
 (``benchmarks.foxglove_client``, reading as Foxglove would) subscribed to every channel, and
 with one subscribed to the channels ``docs/foxglove-layout.json`` shows (what Foxglove with
 that layout subscribes to), against the same mission without ``--live``, alternated, two runs
-each (``--quick``: 4 orbits, one run each).  Whole-run wall time, the lock-step loop (the
-first to the last clock the monitor recorded, by receive wall time) and the CPU of the run's
-processes; the client's CPU and messages; whether the live runs' final errors are the others'
-(the live view must not touch the flight).
+each (``--rounds N``: N each; ``--quick``: 4 orbits, one run each).  Whole-run wall time,
+the lock-step loop (the first to the last clock the monitor recorded, by receive wall time)
+and the CPU of the run's processes; the client's CPU and messages; whether the live runs'
+final errors are the others' (the live view must not touch the flight).
 
-    python -m benchmarks.live [--quick] [--json]
+    python -m benchmarks.live [--quick] [--rounds N] [--json]
 """
 
 from __future__ import annotations
@@ -109,15 +109,16 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def bench_live(quick: bool = False) -> list[dict[str, Any]]:
-    """The default mission with ``--live`` and one client against without, alternated."""
+def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str, Any]]:
+    """The default mission with ``--live`` and one client against without, alternated,
+    ``rounds`` times (default 2; ``quick``: 1)."""
     table = read_table(None)
     if quick:
         table["run"]["orbits"] = 4.0
     runs: dict[str | None, list[dict[str, Any]]] = {None: [], EVERY: [], SHOWN: []}
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-live-") as tmp:
         path = write_deployment(table, Path(tmp), "mission")
-        for _ in range(1 if quick else 2):
+        for _ in range(rounds or (1 if quick else 2)):
             for live in runs:
                 runs[live].append(run_once(path, Path(tmp) / "runs", live))
     rows = []
@@ -199,8 +200,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.live", description=__doc__)
     parser.add_argument("--quick", action="store_true", help="4 orbits, one run each")
     parser.add_argument("--json", action="store_true", help="the rows as JSON on stdout")
+    parser.add_argument(
+        "--rounds", type=int, default=None, help="alternated rounds (default 2, --quick 1)"
+    )
     args = parser.parse_args(argv)
-    rows = bench_live(args.quick)
+    rows = bench_live(args.quick, args.rounds)
     if args.json:
         print(json.dumps(rows))
     else:

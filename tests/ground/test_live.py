@@ -84,10 +84,10 @@ def schema_of(channel: dict[str, Any]) -> dict[str, Any]:
     return json.loads(channel["schema"])
 
 
-def check_channels(advertised: dict[str, dict[str, Any]], liveliness: bool) -> None:
+def check_channels(advertised: dict[str, dict[str, Any]]) -> None:
     """Every topic of the topology advertised with the recording's schema; the others are
-    the live view's gains against K*, the deployment, the 3D scene and (from the monitor) each
-    service's liveliness."""
+    the live view's gains against K*, the deployment, the 3D scene and each service's
+    liveliness."""
     for topic, schema in TOPOLOGY_OF_SHORT.items():
         assert advertised[topic]["schemaName"] == f"ddvi.{schema}", topic
         assert schema_of(advertised[topic]) == message_json_schema(SCHEMAS[schema]), topic
@@ -95,14 +95,12 @@ def check_channels(advertised: dict[str, dict[str, Any]], liveliness: bool) -> N
     extra |= {DEPLOYMENT_TOPIC: "ddvi.deployment"}
     extra |= {"scene/transforms": "foxglove.FrameTransforms"}
     extra |= {t: "foxglove.SceneUpdate" for t in ("scene/formation", *SCENE_ESTIMATES)}
-    if liveliness:
-        extra |= {f"alive/{s}": "ddvi.alive" for s in SERVICES if s != "launcher"}
+    extra |= {f"alive/{s}": "ddvi.alive" for s in SERVICES if s != "launcher"}
     assert {t: c["schemaName"] for t, c in advertised.items() if t not in TOPOLOGY_OF_SHORT} == (
         extra
     )
     assert schema_of(advertised["live/ddvi/gains"]) == LIVE_GAINS_SCHEMA
-    if liveliness:
-        assert schema_of(advertised["alive/monitor"]) == ALIVE_SCHEMA
+    assert schema_of(advertised["alive/monitor"]) == ALIVE_SCHEMA
 
 
 def check_times(messages: list[Received]) -> None:
@@ -323,7 +321,7 @@ def test_ddvi_run_live_serves_every_topic_at_simulation_time(
     live_run: tuple[Path, FoxgloveClient, float],
 ) -> None:
     folder, client, sim_time = live_run
-    check_channels(client.advertised(), liveliness=True)
+    check_channels(client.advertised())
     check_times(client.messages)
     # at least one message of every topic the recording has, each decoding as it does there
     recorded, _ = read_recording(folder / "recording.mcap")
@@ -440,7 +438,7 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait()
-    check_channels(client.advertised(), liveliness=False)
+    check_channels(client.advertised())
     check_times(client.messages)
     # every topic the recording has twice or more after the client's first message, served
     # too (a topic said once, as the LQR's gains, may come before the client subscribed to
@@ -452,6 +450,11 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
     )
     heard = {topic for topic, n in after.items() if n >= 2}
     assert heard - {"stats/monitor"} <= set(client.counts)
+    # each service's liveliness, up when the tap started: sent to the client as it joined
+    alive = [
+        m.json() for m in client.messages if m.topic.startswith("alive/") and m.json()["alive"]
+    ]
+    assert {a["service"] for a in alive} >= {s for s in SERVICES if s != "launcher"}
 
 
 def _final_clock_served(client: FoxgloveClient) -> bool:

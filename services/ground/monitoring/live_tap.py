@@ -3,10 +3,10 @@
 A tap on the run's bus (as the observer, a subscribe-only user, on a secure bus) that serves
 every message it hears through ``services.ground.monitoring.live.LiveServer``: the channels of the
 run's deployment (attached to its recording) advertised at once, each message at its simulation
-time, and the formation's 3D scene made from them (``services.ground.monitoring.scene``).
-Liveliness changes are the monitor's alone (``ddvi run --live`` serves them).  It runs until
-Ctrl-C, ``--count`` messages or ``--seconds`` s; the flight never waits for it (the
-subscriber's callback only queues).
+time, the formation's 3D scene made from them (``services.ground.monitoring.scene``) and each
+service's liveliness (``alive/<service>``: the tokens there when it starts, then each change).
+It runs until Ctrl-C, ``--count`` messages or ``--seconds`` s; the flight never waits for it
+(the subscribers' callbacks only queue).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import sys
 import time
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import zenoh
 from mcap.exceptions import McapError
@@ -26,7 +27,7 @@ from mcap.records import Attachment, Chunk
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 
-from services.bus import error_text, open_session
+from services.bus import error_text, open_session, watch_alive
 from services.bus.security import OBSERVER
 from services.config import Deployment, DeploymentError, deployment_from_table
 from services.ground.launch.credentials import RunNotFoundError, find_run, run_folder
@@ -98,7 +99,7 @@ def serve_live(args: argparse.Namespace) -> int:
         scene = open_scene(dep)
         if dep is not None:
             channels = scene.channels() if scene is not None else []
-            server = live_server(address, dep, bus.run, liveliness=False, scene=channels)
+            server = live_server(address, dep, bus.run, scene=channels)
         else:  # the topics are advertised as they come, and K* is not known
             server = LiveServer(address, f"ddvi {bus.run}", {}, {})
         stack.callback(server.close)
@@ -109,25 +110,29 @@ def serve_live(args: argparse.Namespace) -> int:
             flush=True,
         )
         limits = (int(args.count or 0), float(args.seconds or 0.0))
-        _serve(session, keyexpr, f"ddvi/{bus.run}/", server, scene, *limits)
+        _serve(session, keyexpr, bus.run, server, scene, *limits)
     return 0
 
 
 def _serve(
     session: zenoh.Session,
     keyexpr: str,
-    prefix: str,
+    run: str,
     server: LiveServer,
     scene: Scene | None,
     count: int,
     seconds: float,
 ) -> None:
-    """Serve what ``keyexpr`` hears, and the ``scene`` made from it, until ``count`` messages
-    (0: no limit), ``seconds`` s (0: no limit) or Ctrl-C."""
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    """Serve what ``keyexpr`` hears of ``run``, the ``scene`` made from it and the run's
+    liveliness, until ``count`` messages (0: no limit), ``seconds`` s (0: no limit) or
+    Ctrl-C."""
+    inbox: queue.SimpleQueue[tuple[str | None, Any]] = queue.SimpleQueue()
     sub = session.declare_subscriber(
         keyexpr, lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes()))
     )
+    # a liveliness change is queued as (None, (service, up))
+    alive = watch_alive(session, run, "*", lambda name, up: inbox.put((None, (name, up))))
+    prefix = f"ddvi/{run}/"
     deadline = time.monotonic() + seconds if seconds > 0 else None
     served, sim_t = 0, 0.0
     try:
@@ -137,6 +142,9 @@ def _serve(
             try:
                 key, payload = inbox.get(timeout=POLL)
             except queue.Empty:
+                continue
+            if key is None:
+                server.alive(*payload, sim_t)
                 continue
             topic = key.removeprefix(prefix)
             try:
@@ -158,6 +166,7 @@ def _serve(
     except KeyboardInterrupt:
         pass
     finally:
+        alive.undeclare()
         sub.undeclare()
 
 
