@@ -184,6 +184,9 @@ def test_a_trail_is_the_last_orbit_and_an_estimate_its_three_sigma_ellipsoid() -
     # the ellipsoid's axes, in the Hill frame, span 2 x 3 sigma of the covariance
     spans = np.abs(R) @ size
     assert np.allclose(sorted(spans), sorted(2 * SIGMAS * np.array([2.0, 10.0, 1.0])))
+    # without navigation noise the covariance is zero: the estimate alone, no ellipsoid
+    (plain,) = scene.message("nav/lqr/state", nav("lqr", 180.0, np.arange(6.0), np.zeros((6, 6))))
+    assert len(decoded("foxglove.SceneUpdate", plain.data).entities[0].spheres) == 1
     # a message of no deputy, or on a topic that is not its own, draws nothing
     assert scene.message("nav/ddvi/state", nav("lqr", 120.0, np.arange(6.0), P)) == []
 

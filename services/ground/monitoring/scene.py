@@ -15,7 +15,8 @@ at that time has come):
 and with each deputy's navigation sample on a flight-software step:
 
     scene/<sc>/estimate  foxglove.SceneUpdate: the navigated position and its 3-sigma
-                         covariance ellipsoid (the filter's position covariance)
+                         covariance ellipsoid (the filter's position covariance; none
+                         when it is zero, without navigation noise)
 
 Every message is whole (nothing depends on an earlier one), so the last one of each channel is
 the scene: what a client joining late is sent (``services.ground.monitoring.live_latch``).
@@ -128,13 +129,16 @@ def quaternion(C: Any) -> tuple[float, float, float, float]:
     return sign * b[1], sign * b[2], sign * b[3], sign * b[0]
 
 
-def ellipsoid(P: np.ndarray) -> tuple[tuple[float, float, float, float], np.ndarray]:
+def ellipsoid(P: np.ndarray) -> tuple[tuple[float, float, float, float], list[float]]:
     """The orientation (a quaternion, ``quaternion``) and the diameters (m) of the
     ``SIGMAS``-sigma ellipsoid of a position covariance ``P`` (3, 3)."""
     values, axes = np.linalg.eigh(0.5 * (P + P.T))
-    if np.linalg.det(axes) < 0:  # a rotation, not a reflection
-        axes[:, 2] = -axes[:, 2]
-    return quaternion(axes.T.tolist()), 2.0 * SIGMAS * np.sqrt(np.clip(values, 0.0, None))
+    rows = axes.T.tolist()  # each principal axis in the Hill frame
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
+        rows[2] = [-v for v in rows[2]]  # a rotation, not a reflection
+    diameters = [2.0 * SIGMAS * math.sqrt(max(v, 0.0)) for v in values.tolist()]
+    return quaternion(rows), diameters
 
 
 def _rgba(hex_colour: str, alpha: float = 1.0) -> Any:
@@ -155,6 +159,10 @@ class Scene:
         self.crafts = ["chief", *(d.name for d in dep.deputy)]
         self.fsw = dep.run.fsw_period
         self.colours = {d.name: PALETTE[k % len(PALETTE)] for k, d in enumerate(dep.deputy)}
+        # each deputy's colour as drawn: (body, trail, ellipsoid), made once
+        self._paint = {
+            sc: (_rgba(c), _rgba(c, 0.8), _rgba(c, 0.25)) for sc, c in self.colours.items()
+        }
         steps = max(2, math.ceil(orbit_period(dep) / self.fsw) + 1)
         self.trails: dict[str, deque[Any]] = {d.name: deque(maxlen=steps) for d in dep.deputy}
         self._pending: dict[float, dict[str, Message]] = {}  # t -> craft -> its truth at t
@@ -222,7 +230,7 @@ class Scene:
                 thickness=2.0,
                 scale_invariant=True,
                 points=list(trail),
-                color=_rgba(self.colours[sc], 0.8),
+                color=self._paint[sc][1],
             )
             trails.append({"frame_id": SCENE_FRAME, "id": f"trail/{sc}", "lines": [line]})
         entities = [fm.SceneEntity(timestamp=stamp, **e) for e in (*self._fixed, *trails)]
@@ -300,22 +308,27 @@ class Scene:
         fm = self._fm
         sc, b = msg.body["sc"], msg.body
         x = b["x_hill"]
-        (qx, qy, qz, qw), diameters = ellipsoid(np.asarray(b["cov"])[:3, :3])
         centre = fm.Vector3(x=x[0], y=x[1], z=x[2])
-        colour = self.colours[sc]
+        body, _, shade = self._paint[sc]
         dot = 0.5 * BODY_SCALE * BUS_SIZE[0]
         spheres = [
             fm.SpherePrimitive(
                 pose=fm.Pose(position=centre, orientation=fm.Quaternion(w=1.0)),
                 size=fm.Vector3(x=dot, y=dot, z=dot),
-                color=_rgba(colour),
-            ),
-            fm.SpherePrimitive(
-                pose=fm.Pose(position=centre, orientation=fm.Quaternion(x=qx, y=qy, z=qz, w=qw)),
-                size=fm.Vector3(x=diameters[0], y=diameters[1], z=diameters[2]),
-                color=_rgba(colour, 0.25),
-            ),
+                color=body,
+            )
         ]
+        P = b["cov"][:3, :3]
+        if P.any():  # no navigation noise, no ellipsoid (nor its eigen-decomposition to pay)
+            (qx, qy, qz, qw), (dx, dy, dz) = ellipsoid(P)
+            orientation = fm.Quaternion(x=qx, y=qy, z=qz, w=qw)
+            spheres.append(
+                fm.SpherePrimitive(
+                    pose=fm.Pose(position=centre, orientation=orientation),
+                    size=fm.Vector3(x=dx, y=dy, z=dz),
+                    color=shade,
+                )
+            )
         entity = fm.SceneEntity(
             timestamp=self._stamp(msg.t),
             frame_id=SCENE_FRAME,
