@@ -214,17 +214,20 @@ class LiveServer:
         if worth_saying(n):
             log.exception("live view: could not serve %s (#%d)", what, n)
 
-    def message(self, topic: str, msg: Message) -> None:
-        """Serve a decoded bus message at its simulation time; the time master's clock moves
-        the server's time."""
+    def message(self, topic: str, msg: Message, recorded: bytes | None = None) -> None:
+        """Serve a decoded bus message at its simulation time (``recorded``: its JSON as the
+        recording has it, when it was written there); the time master's clock moves the
+        server's time."""
         try:
             t = ns(msg.t)
             if msg.schema == "clock" and msg.src == TIME_MASTER and t > self._time:
                 self._time = t
                 self._server.broadcast_time(t)
-            schema = _bus_schema(msg.schema)
-            record = message_record(msg)
-            self._send(topic, f"ddvi.{msg.schema}", schema, functools.partial(_json, record), t)
+            if recorded is None:
+                payload: Payload = functools.partial(_json, message_record(msg))
+            else:
+                payload = functools.partial(bytes, recorded)  # bytes of bytes: no copy
+            self._send(topic, f"ddvi.{msg.schema}", _bus_schema(msg.schema), payload, t)
             if msg.schema == "gains":
                 self._gains(topic.split("/")[1], msg)  # the topic's deputy, not the body's
         except Exception:

@@ -234,13 +234,11 @@ class Monitor:
         except MessageError as err:
             self.reject(topic, key, value, err, recv_ns)
             return
-        rec.message(topic, msg, recv_ns)  # everything received is recorded
+        recorded = rec.message(topic, msg, recv_ns)  # everything received is recorded
         self.counters["recorded"] = rec.messages
         self.data.received(msg)  # and counted against its publisher's stats (claims)
         if self.live is not None:
-            self.live.message(topic, msg)
-        if self.scene is not None:
-            self.draw(topic, msg, recv_ns)
+            self.live.message(topic, msg, recorded)  # the same JSON, encoded once
         if msg.schema == "clock" and msg.src != TIME_MASTER:
             if worth_saying(n := self.tally("refused.clock")):
                 log.warning(
@@ -259,6 +257,8 @@ class Monitor:
         except Exception:  # one odd message must not take the recording down
             self.counters["handler_errors"] += 1
             log.exception("could not use %s at t = %s", key, msg.t)
+        if self.scene is not None:  # what the report believes, and no other
+            self.draw(topic, msg, recv_ns)
         if msg.schema == "clock":
             self.acknowledge(msg)
 

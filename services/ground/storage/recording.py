@@ -308,17 +308,19 @@ class Recorder:
         log_ns: int,
         pub_ns: int,
         seq: int = 0,
-    ) -> None:
+    ) -> bytes | None:
         """Write ``data`` as JSON on channel ``topic`` (registered with its schema on first
-        use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns."""
+        use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns.  The JSON
+        written (the live view serves the same bytes), or None once the recording stopped."""
         file = self._file  # its room changes only as it is written
         if self.stopped is None and file is not None and file.position != self._room_seen:
             self._keep_room()
         if self.stopped is not None:
             self.not_recorded += 1
-            return
+            return None
         payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
         self._append(topic, schema_name, schema, payload, log_ns, pub_ns, seq, bus=True)
+        return payload
 
     def scene(self, topic: str, schema: Any, data: bytes, log_ns: int, recv_ns: int) -> None:
         """Record a scene message (``services.ground.monitoring.scene``), encoded in its
@@ -360,11 +362,12 @@ class Recorder:
         if self._file.chunks != chunks:
             self._settle(chunks)
 
-    def message(self, topic: str, msg: Message, recv_ns: int) -> None:
-        """Record a decoded bus message received at wall time ``recv_ns``."""
+    def message(self, topic: str, msg: Message, recv_ns: int) -> bytes | None:
+        """Record a decoded bus message received at wall time ``recv_ns``; its JSON (None once
+        the recording stopped)."""
         schema = _recorded_schema(msg.schema)
         data = message_record(msg)
-        self.write(topic, f"ddvi.{msg.schema}", schema, data, ns(msg.t), recv_ns, msg.seq)
+        return self.write(topic, f"ddvi.{msg.schema}", schema, data, ns(msg.t), recv_ns, msg.seq)
 
     def rejected(
         self, topic: str, key: str, payload: bytes, err: MessageError, recv_ns: int, t: float
