@@ -13,6 +13,7 @@ final errors are the others' (the live view must not touch the flight).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import resource
 import statistics
@@ -24,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.foxglove_client import FoxgloveClient
-from benchmarks.mission import _clock_span, _row
+from benchmarks.mission import _clock_span, _row, skipped_row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
 from services.ground.monitoring.scene import TRANSFORMS_TOPIC
@@ -109,9 +110,34 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+NEEDS = {
+    "foxglove": "foxglove-sdk (the live view's server)",
+    "websockets": "websockets (the benchmark's Foxglove client)",
+}
+"""The modules the live benchmark needs beyond a plain installation: the test extra's."""
+
+
+def missing() -> str | None:
+    """Why the live benchmark cannot run here (what is not installed, and how to install it),
+    or None."""
+    absent = []
+    for module, what in NEEDS.items():
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            absent.append(what)
+    if not absent:
+        return None
+    verb = "is" if len(absent) == 1 else "are"
+    return f"{' and '.join(absent)} {verb} not installed (pip install -e '.[test]')"
+
+
 def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str, Any]]:
     """The default mission with ``--live`` and one client against without, alternated,
-    ``rounds`` times (default 2; ``quick``: 1)."""
+    ``rounds`` times (default 2; ``quick``: 1); a skipped row when its server or client is
+    not installed."""
+    if (why := missing()) is not None:
+        return [skipped_row("live", why)]
     table = read_table(None)
     if quick:
         table["run"]["orbits"] = 4.0

@@ -151,6 +151,15 @@ def _row(
     }
 
 
+def skipped_row(bench: str, why: str) -> dict[str, Any]:
+    """The row of a benchmark that cannot run here, ``why`` said in it (``skipped``: what
+    ``ddvi bench`` lists at the end)."""
+    nan = float("nan")
+    row = _row(f"skipped: {why}", "", nan, nan, "-", nan, bench=bench)
+    row["skipped"] = why
+    return row
+
+
 def run_single(path: Path) -> dict[str, Any]:
     """The same deployment stepped in one fresh process (imports included), no bus; with the
     loop's wall time and each service's share of it (``run_in_process``'s timing)."""
@@ -482,17 +491,8 @@ def bench_basilisk(quick: bool = False) -> list[dict[str, Any]]:
     import importlib.util
 
     if importlib.util.find_spec("Basilisk") is None:
-        return [
-            _row(
-                "skipped: Basilisk is not installed (pip install -e '.[basilisk]')",
-                "",
-                float("nan"),
-                float("nan"),
-                "-",
-                float("nan"),
-                bench="basilisk",
-            )
-        ]
+        why = "Basilisk is not installed (pip install -e '.[basilisk]')"
+        return [skipped_row("basilisk", why)]
     rows = []
     base = "built-in truth"
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-") as tmp:

@@ -6,7 +6,10 @@
 
 Each row gives the project's figure, the baseline's, and the cost ratio (above 1: the project
 is slower or bigger than its baseline); a row whose target bounds that ratio (``<= 1.3``,
-``<= 2x; ...``) gets a verdict, met or missed.  Benchmarks are not tests: nothing here asserts.
+``<= 2x; ...``) gets a verdict, met or missed.  A benchmark that needs a package this
+installation lacks (Basilisk; foxglove-sdk and websockets, the test extra's) gives one row saying
+so, and the benchmarks skipped are listed with the reason after the table (``--json``: in
+``meta.skipped``).  Benchmarks are not tests: nothing here asserts.
 """
 
 from __future__ import annotations
@@ -131,12 +134,23 @@ def run(args: argparse.Namespace) -> int:
             row["seconds"] = time.perf_counter() - t0
             row["verdict"] = verdict(row)
         rows.extend(got)
+    skipped = {r["benchmark"]: r["skipped"] for r in rows if "skipped" in r}
     if args.json:
         meta = {"quick": args.quick, "python": platform.python_version(), "cpus": os.cpu_count()}
+        meta["skipped"] = skipped
         print(json.dumps(plain_json({"meta": meta, "rows": rows}), allow_nan=False))
         return 0
     print_table(rows, args.quick)
+    print_skipped(skipped)
     return 0
+
+
+def print_skipped(skipped: dict[str, str]) -> None:
+    """What could not run here and why, one line each, after the table."""
+    if skipped:
+        print(f"skipped {len(skipped)} benchmark{'s' if len(skipped) > 1 else ''}:")
+        for name, why in skipped.items():
+            print(f"  {name}: {why}")
 
 
 def print_table(rows: list[dict[str, Any]], quick: bool) -> None:

@@ -39,7 +39,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from ddvi_core.convergence import TRUST, euler_limit_of_modes, meets_tolerance, unconverged_message
+from ddvi_core.convergence import (
+    TRUST,
+    euler_limit_of_modes,
+    meets_tolerance,
+    met_message,
+    unconverged_message,
+)
 
 if TYPE_CHECKING:  # the settings' module imports this one
     from ddvi_core.value_iteration import IterationSettings
@@ -255,7 +261,8 @@ def continuation_loop(
         error = gain_error(images, M, modes, K, F) if settings.rule == "relative" else residual
         errors.append(error)
         if meets_tolerance(settings.rule, error, settings.tol, P_norm):
-            why = _met(settings.rule, error, settings.tol, state.rejected)
+            met = met_message(settings.rule, error, settings.tol)
+            why = f"{met}; implicit steps, {state.rejected} rejected by the safeguard"
             return state.P, K, k + 1, state.r, True, residual, np.array(history), why
         state = _with_step(state, modes, settings.steps.gain, P_norm, residual)
         X = _implicit_step(M, F, state.eps)
@@ -277,13 +284,3 @@ def continuation_loop(
             state = _advanced(state, P_new, change, P_norm)
     why = unconverged_message(settings.rule, np.array(errors), residual, settings.tol)
     return state.P, K, settings.max_iterations, state.r, False, residual, np.array(history), why
-
-
-def _met(rule: str, error: float, tol: float, rejected: int) -> str:
-    """What was met at the stop, in the converged message."""
-    met = (
-        f"estimated |K - K*|/|K| {error:.3g} <= tol {tol:g}"
-        if rule == "relative"
-        else f"residual {error:.3g} < tol {tol:g} max(1, |P|)"
-    )
-    return f"{met}; implicit steps, {rejected} rejected by the safeguard"

@@ -94,6 +94,14 @@ def meets_tolerance(rule: str, error: float, tol: float, P_norm: float) -> bool:
     return error < tol * max(1.0, P_norm)
 
 
+def met_message(rule: str, error: float, tol: float) -> str:
+    """What the stopping rule (:func:`meets_tolerance`) met at the stop, for a converged
+    message."""
+    if rule == "relative":
+        return f"estimated |K - K*|/|K| {error:.3g} <= tol {tol:g}"
+    return f"residual {error:.3g} < tol {tol:g} max(1, |P|)"
+
+
 def unconverged_message(rule: str, errors: NDArray, residual: float, tol: float) -> str:
     """Why the budget ran out unconverged: :func:`budget_report` of the per-iteration
     estimates ``errors`` (k,) with the "relative" ``rule``, else the last residual against

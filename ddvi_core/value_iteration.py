@@ -32,7 +32,7 @@ from ddvi_core.continuation import (
     linearisation,
     riccati_flow,
 )
-from ddvi_core.convergence import adaptive_step, meets_tolerance, unconverged_message
+from ddvi_core.convergence import adaptive_step, meets_tolerance, met_message, unconverged_message
 
 __all__ = [
     "LEARNING_METHODS",
@@ -272,16 +272,6 @@ def _leaves(P: NDArray, radius: float, psd_tol: float) -> str:
     return "cone" if np.linalg.eigvalsh(P)[0] < -psd_tol * norm else ""
 
 
-def _stop_message(rule: str, error: float, tol: float, accelerated: int, rejected: int) -> str:
-    """What was met at the stop, in the converged message."""
-    met = (
-        f"estimated |K - K*|/|K| {error:.3g} <= tol {tol:g}"
-        if rule == "relative"
-        else f"residual {error:.3g} < tol {tol:g} max(1, |P|)"
-    )
-    return f"{met}; {accelerated} accelerated steps, {rejected} rejected by the safeguard"
-
-
 def _cone_resets_message(times: int, eps: float) -> str:
     return (
         f"P left the positive semidefinite cone {times} times from P0 with a "
@@ -475,7 +465,10 @@ def value_iteration_loop(
             continue
         history[k] = eps * residual
         if meets_tolerance(settings.rule, errors[k], settings.tol, P_norm):
-            done = _stop_message(settings.rule, errors[k], settings.tol, acc.accepted, acc.rejected)
+            done = (
+                f"{met_message(settings.rule, errors[k], settings.tol)}; {acc.accepted} "
+                f"accelerated steps, {acc.rejected} rejected by the safeguard"
+            )
             return P + eps * F, K, k + 1, restarts.r, True, residual, history[: k + 1], done
         P, restarts, leaves = _next_iterate(P, F, eps, errors[k], acc, restarts, settings)
         if leaves == "cone" and restarts.cone_streak >= settings.max_psd_resets:

@@ -5,6 +5,7 @@
 ``config``     deployments: strict reading and validation
 ``model``      deployment -> mathematics: mission model, truth backends
 ``flight``     the processes: environment, navigation, controller, runtime
+``ros2``       the ROS 2 wire format; its ``gateway``, the service that shows a run to ROS 2
 ``ground``     launcher, monitor, recording, report, faults, sweeps
 ``cli``        the ``ddvi`` command
 """

@@ -16,9 +16,23 @@ from typing import Any, NoReturn
 
 from services.exit_status import EXIT_FAIL, EXIT_USAGE
 
+ROS2_INSTALL = "pip install 'ddvi-fsw[ros2]'"
+"""The command that adds what the ROS 2 gateway needs (rosbags, xxhash)."""
+
+
+def ros2_missing() -> str | None:
+    """Why the ROS 2 gateway cannot run here (its packages are not installed), in one line, or
+    None: found before any process is started."""
+    try:
+        import rosbags.typesys  # noqa: F401 - only whether it is there
+        import xxhash  # noqa: F401
+    except ImportError as exc:
+        return f"the ROS 2 gateway needs {exc.name}, which is not installed: {ROS2_INSTALL}"
+    return None
+
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from services.config import DeploymentError, load_deployment
+    from services.config import DeploymentError, check_ros2_endpoint, load_deployment, with_ros2
     from services.ground.launch.launcher import Launcher, Viewing
 
     if args.output is not None and not args.output.strip():
@@ -28,11 +42,35 @@ def cmd_run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    if args.ros2:
+        try:
+            check_ros2_endpoint(args.ros2)
+        except ValueError as exc:
+            print(f"ddvi run: --ros2: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+    table = None  # the deployment's table when --ros2 changes it from its file's
     try:
-        dep = load_deployment(args.deployment)
+        if args.ros2 is None:
+            dep = load_deployment(args.deployment)
+        else:
+            dep, table = with_ros2(args.deployment, args.ros2 or None)
     except DeploymentError as exc:
         print(f"ddvi run: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    if dep.ros2.enabled and (why := ros2_missing()) is not None:
+        print(f"ddvi run: {why}", file=sys.stderr)
+        return EXIT_USAGE
+    if dep.ros2.enabled:
+        from services.ground.monitoring.live_address import loopback
+
+        host = dep.ros2.endpoint.removeprefix("tcp/").rpartition(":")[0]
+        if not loopback(host):
+            print(
+                f"ddvi run: warning: the ROS 2 side at {dep.ros2.endpoint} reaches beyond this "
+                "machine: ROS 2 has no authentication there, anyone who reaches it reads what "
+                "the gateway carries",
+                file=sys.stderr,
+            )
     from services.model import backend_missing
 
     if (why := backend_missing(dep)) is not None:  # bad input, found before any launch
@@ -55,7 +93,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     viewing = Viewing(live, args.rate or 0.0, args.wait_for_client and live is not None)
     launcher = Launcher(
-        dep, out_root=args.output, quiet=args.quiet, folder_mode=args.folder_mode, viewing=viewing
+        dep,
+        out_root=args.output,
+        quiet=args.quiet,
+        folder_mode=args.folder_mode,
+        viewing=viewing,
+        table=table,
     )
     return launcher.execute()
 
@@ -149,6 +192,15 @@ def _run_arguments(p: argparse.ArgumentParser) -> None:
         "--wait-for-client",
         action="store_true",
         help="with --live: the first step waits until a client (Foxglove) subscribes",
+    )
+    p.add_argument(
+        "--ros2",
+        nargs="?",
+        const="",
+        metavar="ENDPOINT",
+        help="show the run to ROS 2 Jazzy over rmw_zenoh: join the Zenoh router at ENDPOINT, "
+        "or serve it (default: the deployment's [ros2] endpoint, tcp/127.0.0.1:7447; needs "
+        f"{ROS2_INSTALL}; docs/ros2.md)",
     )
     p.set_defaults(func=cmd_run)
 
@@ -247,10 +299,20 @@ COMMANDS: dict[str, tuple[str, Any]] = {
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse's parser, whose usage error is one line on stderr (and exit 2)."""
+    """argparse's parser, whose usage error is one line on stderr (and exit 2), said by the
+    innermost command given: an argument it does not take is named by it (``ddvi sweep delay:
+    unrecognized arguments: --mismatch 2``), not by ``ddvi``."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: list[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
 
 
 def folder_mode(text: str) -> int:

@@ -30,15 +30,16 @@ def seed(text: str) -> int:
     return value
 
 
-def _load(name: str):
-    """A built-in scenario, a system file, or a shipped example by name (``cart-pole``)."""
+def _load(args: argparse.Namespace) -> Any:
+    """The system ``args.system`` names: a built-in scenario, a system file, or a shipped
+    example by name (``cart-pole``); one line and exit 2 when it names none."""
     from ddvi_core.systems import SystemFileError
     from services.config.files import load_system
 
     try:
-        return load_system(name)
+        return load_system(args.system)
     except SystemFileError as exc:
-        print(f"ddvi: {exc}", file=sys.stderr)
+        print(f"ddvi {args.command}: {exc}", file=sys.stderr)
         raise SystemExit(EXIT_USAGE) from None
 
 
@@ -53,7 +54,7 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    system = _load(args.system)
+    system = _load(args)
     report = system.problem.check_assumptions()
     if args.json:
         print(json.dumps({"system": system.name, **report.as_dict()}))
@@ -156,7 +157,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
     from ddvi_core.regulator import InfeasibleError
     from ddvi_core.solve import reference_errors, solve
 
-    system = _load(args.system)
+    system = _load(args)
     t0 = time.perf_counter()
     try:
         sol = solve(system, args.method, seed=args.seed)

@@ -70,10 +70,12 @@ During = Callable[[subprocess.Popen, Path], None]
 """What a test does to a flying run: ``during(launcher process, run folder)``."""
 
 
-def fly(dep: Path, root: Path, during: During | None = None) -> tuple[int, str, Path]:
-    """``ddvi run dep`` into ``root``; ``during(proc, run folder)`` once its services are alive
-    (the environment then flies).  Its status, stderr and run folder."""
-    cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output", str(root)]
+def fly(
+    dep: Path, root: Path, during: During | None = None, options: tuple[str, ...] = ()
+) -> tuple[int, str, Path]:
+    """``ddvi run dep`` into ``root`` with ``options``; ``during(proc, run folder)`` once its
+    services are alive (the environment then flies).  Its status, stderr and run folder."""
+    cmd = [sys.executable, "-m", "services.cli", "run", str(dep), "--output", str(root), *options]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     said: list[bytes] = []

@@ -12,7 +12,13 @@ from services.bus.budget import RateBudget, budget_for, message_count
 from services.bus.endpoint import Bus, queue_handler
 from services.bus.guards import SEQUENCE_REASONS, SequenceGuard, SequenceGuards
 from services.bus.links import LinkModel
-from services.bus.liveliness import router_answers, wait_for_alive, wait_for_gone, watch_alive
+from services.bus.liveliness import (
+    alive_services,
+    router_answers,
+    wait_for_alive,
+    wait_for_gone,
+    watch_alive,
+)
 from services.bus.reception import worth_saying
 from services.bus.session import (
     DEFAULT_HUB,
@@ -47,6 +53,7 @@ __all__ = [
     "RateBudget",
     "SequenceGuard",
     "SequenceGuards",
+    "alive_services",
     "budget_for",
     "check_name",
     "error_text",

@@ -51,7 +51,9 @@ class RateBudget:
     """Token buckets by key, refilled by simulated time (``advance``); thread safe.
 
     ``periods`` maps a period name of the topology (``"nav"``, ``"fsw"``, ``"status"``) to
-    simulated seconds; a topic outside the topology gets the shortest of them.
+    simulated seconds; a topic outside the topology gets the shortest of them.  ``owner``
+    names a topic's publisher, whom its drops are counted against: the topology's by default;
+    a run's own (``Deployment.publisher_of``) knows who commands a deputy flown from ROS 2.
     """
 
     def __init__(
@@ -61,6 +63,7 @@ class RateBudget:
         slack: float = BUDGET_SLACK,
         burst: float = BUDGET_BURST,
         max_keys: int = MAX_KEYS,
+        owner: Callable[[str], str | None] = publisher_of,
     ) -> None:
         if not periods or min(periods.values()) <= 0:
             raise ValueError(f"RateBudget.periods: expected positive periods, got {periods}")
@@ -70,6 +73,7 @@ class RateBudget:
         self.dropped: dict[str, int] = {}  # publisher -> messages dropped
         self._buckets: dict[str, list[float]] = {}  # key -> [tokens, rate, sim time of tokens]
         self._owner: dict[str, str] = {}  # key -> its publisher, for the counts
+        self._owner_of = owner
         self._lock = threading.Lock()
 
     def advance(self, sim_t: float) -> None:
@@ -89,7 +93,7 @@ class RateBudget:
         topic = key[len(self.prefix) :] if key.startswith(self.prefix) else key
         period = self.periods.get(budget_period(topic) or "", min(self.periods.values()))
         bucket = self._buckets[key] = [self.burst, self.slack / period, self.sim_t]
-        self._owner[key] = OTHER if key == OTHER else (publisher_of(topic) or OTHER)
+        self._owner[key] = OTHER if key == OTHER else (self._owner_of(topic) or OTHER)
         return key, bucket
 
     def take(self, key: str, payload: bytes) -> bool:
@@ -122,12 +126,19 @@ class RateBudget:
             return {f"flood.{owner}": n for owner, n in self.dropped.items()}
 
 
-def budget_for(prefix: str, nav_period: float, fsw_period: float, status_every: int) -> RateBudget:
+def budget_for(
+    prefix: str,
+    nav_period: float,
+    fsw_period: float,
+    status_every: int,
+    owner: Callable[[str], str | None] = publisher_of,
+) -> RateBudget:
     """A run's budget: its periods from the deployment's (``Deployment.run``, and the shortest
-    navigation period of its deputies as ``nav_period``)."""
+    navigation period of its deputies as ``nav_period``), its topics' publishers ``owner``'s."""
     return RateBudget(
         prefix,
         {"nav": nav_period, "fsw": fsw_period, "status": fsw_period * max(status_every, 1)},
+        owner=owner,
     )
 
 

@@ -69,6 +69,16 @@ def wait_for_alive(
         subscriber.undeclare()
 
 
+def alive_services(session: zenoh.Session, run: str, timeout: float = 2.0) -> set[str]:
+    """The services of ``run`` whose liveliness token is there now: a liveliness query, which
+    the run's router answers at once with every token it holds (``timeout`` s at most)."""
+    found: set[str] = set()
+    for reply in session.liveliness().get(key_prefix(run) + alive_topic("*"), timeout=timeout):
+        if reply.ok is not None:
+            found.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+    return found
+
+
 def wait_for_gone(session: zenoh.Session, run: str, service: str, timeout: float) -> bool:
     """Wait until ``service``'s liveliness token is gone (or was never there), at most
     ``timeout`` s; whether it is gone."""

@@ -33,7 +33,13 @@ from pathlib import Path
 from typing import Any
 
 from services.bus.session import BusSettings, key_prefix
-from services.interface.topics import alive_topic, topics_published_by
+from services.interface.topics import (
+    ROS2_GATEWAY,
+    alive_topic,
+    command_deputy,
+    command_topic,
+    topics_published_by,
+)
 
 OPERATOR = "ground-operator"
 """The operator's user: ``ddvi fault`` connects with it (the ground's ``ground-<pid>`` role)."""
@@ -162,12 +168,17 @@ def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict
     }
 
 
-def access_control(run: str, users: Iterable[str]) -> dict[str, Any]:
+def access_control(
+    run: str, users: Iterable[str], ros2_deputies: Iterable[str] = ()
+) -> dict[str, Any]:
     """The router's ``access_control`` block for ``run``: deny by default; every user may
     subscribe and is delivered what it subscribed; each user puts only the topics its
     service publishes per the topology (``topics_published_by``) and declares only its own
-    liveliness token.  ``users`` are service names (``nav-lqr``, ``ground-operator``, ...)."""
+    liveliness token.  ``users`` are service names (``nav-lqr``, ``ground-operator``, ...).
+    The ROS 2 gateway, which the topology lets command any deputy, puts the commands of
+    ``ros2_deputies`` (the deputies flown from ROS 2) and of no other."""
     prefix = key_prefix(run)
+    commands = [command_topic(sc) for sc in ros2_deputies]
     users = list(dict.fromkeys(users))
     rules = [
         _rule("subscribe", "ingress", _SUBSCRIBE, [prefix + "**"]),
@@ -176,7 +187,10 @@ def access_control(run: str, users: Iterable[str]) -> dict[str, Any]:
     subjects = [{"id": "everyone", "usernames": users}]
     policies = [{"id": "everyone", "rules": ["subscribe", "deliver"], "subjects": ["everyone"]}]
     for user in users:
-        keys = [prefix + topic for topic in topics_published_by(user)]
+        topics = topics_published_by(user)
+        if user == ROS2_GATEWAY:
+            topics = tuple(t for t in topics if command_deputy(t) is None) + tuple(commands)
+        keys = [prefix + topic for topic in topics]
         own = [f"put {user}"] if keys else []
         if keys:
             rules.append(_rule(own[0], "ingress", ["put"], keys))

@@ -15,8 +15,19 @@ from services.config.deployment import (
     Orbit,
     controller_label,
 )
-from services.config.files import load_deployment, read_table, resolve, write_deployment
-from services.config.validation import check_fault, check_panel, deployment_from_table
+from services.config.files import (
+    load_deployment,
+    read_table,
+    resolve,
+    with_ros2,
+    write_deployment,
+)
+from services.config.validation import (
+    check_fault,
+    check_panel,
+    check_ros2_endpoint,
+    deployment_from_table,
+)
 from services.config.wiring import check_kill, check_link_fault, link_from_params
 
 __all__ = [
@@ -29,11 +40,13 @@ __all__ = [
     "check_kill",
     "check_link_fault",
     "check_panel",
+    "check_ros2_endpoint",
     "controller_label",
     "deployment_from_table",
     "link_from_params",
     "load_deployment",
     "read_table",
     "resolve",
+    "with_ros2",
     "write_deployment",
 ]

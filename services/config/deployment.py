@@ -17,12 +17,13 @@ from ddvi_core.learning_config import FLIGHT_SCHEDULE_KEYS, LearningConfig
 from ddvi_core.tables import table_field
 from services.interface.keys import key_matches
 from services.interface.links import LinkRule, LinkSpec, rule_latency
-from services.interface.topics import concrete_topics
+from services.interface.topics import ROS2_GATEWAY, command_deputy, concrete_topics, publisher_of
 
 __all__ = [
     "DEPUTY_LEARNING_KEYS",
     "FAULT_KINDS",
     "RESTART_POLICIES",
+    "ROS2_TOPICS",
     "Atmosphere",
     "Bus",
     "Deployment",
@@ -35,6 +36,7 @@ __all__ = [
     "Navigation",
     "Orbit",
     "Restart",
+    "Ros2",
     "Run",
     "SpacecraftSpec",
     "controller_label",
@@ -148,7 +150,7 @@ exostate and the iteration's units come from the rest of the deployment)."""
 @dataclass(frozen=True)
 class Deputy:
     name: str = ""
-    controller: str = "lqr"  # "lqr" or "ddvi"
+    controller: str = "lqr"  # "lqr", "ddvi" or "ros2" (its commands from ROS 2: docs/ros2.md)
     y_ref: float = 0.0  # along-track slot, m
     orbit: Orbit = field(default_factory=lambda: Orbit(a=6678.376e3, f=19.75))
     area_factor: float = 1.0  # truth facet area / nominal
@@ -164,9 +166,9 @@ class Deputy:
 
 
 def controller_label(controller: str, method: str | None) -> str:
-    """A controller as results tables name it: ``lqr``, or a learner with its
+    """A controller as results tables name it: ``lqr``, ``ros2``, or a learner with its
     learning.method (``ddvi value-iteration``, ``ddvi model-fit``)."""
-    return controller if controller == "lqr" or not method else f"{controller} {method}"
+    return f"{controller} {method}" if controller == "ddvi" and method else controller
 
 
 @dataclass(frozen=True)
@@ -244,6 +246,38 @@ class Host:
     services: list[str] = field(default_factory=list)
 
 
+ROS2_TOPICS = (
+    "clock",
+    "odom",
+    "altitude",
+    "truth",
+    "attitude",
+    "gains",
+    "diagnostics",
+    "tf",
+)
+"""What the ROS 2 gateway can carry (docs/ros2.md, "Topics"): ``clock`` /clock; per deputy
+``odom`` its navigated relative state, ``altitude`` navigation's altitude, ``truth`` its true
+relative state, ``attitude`` its commanded attitude, ``gains`` the gains its controller flies
+and the truth model's optimal ones; ``diagnostics`` the services' health; ``tf`` the
+chief-to-deputy transforms."""
+
+
+@dataclass(frozen=True)
+class Ros2:
+    """The ROS 2 gateway (docs/ros2.md): one more service of the run, ``ros2-gateway``, that
+    carries the topics ``topics`` names (``ROS2_TOPICS``) to ROS 2 Jazzy over rmw_zenoh, in
+    ROS domain ``domain_id``, on a Zenoh session of its own at ``endpoint``: it joins the Zenoh
+    router that answers there (a user's ``rmw_zenohd``) or else serves that endpoint as the
+    router itself.  The run's bus is never opened to the ROS 2 side.  Off unless ``enabled``
+    (or ``ddvi run --ros2``)."""
+
+    enabled: bool = False
+    endpoint: str = "tcp/127.0.0.1:7447"  # rmw_zenoh's default router
+    domain_id: int = 0  # ROS_DOMAIN_ID
+    topics: list[str] = field(default_factory=lambda: list(ROS2_TOPICS))
+
+
 @dataclass(frozen=True)
 class Deployment:
     run: Run = field(default_factory=Run)
@@ -257,14 +291,19 @@ class Deployment:
     restart: list[Restart] = field(default_factory=list)
     fault: list[Fault] = field(default_factory=list)
     host: list[Host] = field(default_factory=list)
+    ros2: Ros2 = field(default_factory=Ros2)
     path: str = ""
 
     @property
     def services(self) -> list[str]:
         """Service names, in start order (the environment, the time master, last)."""
         names = ["monitor"]
-        for d in self.deputy:
-            names += [f"nav-{d.name}", f"ctrl-{d.name}"]
+        for d in self.deputy:  # a deputy flown from ROS 2 has no controller of the run's
+            names += (
+                [f"nav-{d.name}"] if d.controller == "ros2" else [f"nav-{d.name}", f"ctrl-{d.name}"]
+            )
+        if self.ros2.enabled:
+            names.append(ROS2_GATEWAY)
         return [*names, "environment"]
 
     def topics(self) -> dict[str, str]:
@@ -274,6 +313,19 @@ class Deployment:
         return concrete_topics(
             {"craft": ["chief", *deputies], "sc": deputies, "service": [*self.services, "launcher"]}
         )
+
+    def commander(self, deputy: str) -> str:
+        """The service that puts deputy ``deputy``'s commands on the bus: its controller
+        ``ctrl-<deputy>``, or the ROS 2 gateway for a deputy flown from ROS 2."""
+        flown = any(d.name == deputy and d.controller == "ros2" for d in self.deputy)
+        return ROS2_GATEWAY if flown else f"ctrl-{deputy}"
+
+    def publisher_of(self, topic: str) -> str | None:
+        """The one service that publishes ``topic`` in a run of this deployment: the
+        topology's (``topics.publisher_of``), but a ROS 2-flown deputy's commands are the
+        gateway's."""
+        deputy = command_deputy(topic)
+        return self.commander(deputy) if deputy is not None else publisher_of(topic)
 
     def session_lease_ms(self) -> int:
         """Every session's lease (zenoh ``transport/link/tx/lease``), the hub's and each

@@ -31,6 +31,7 @@ __all__ = [
     "read_table",
     "resolve",
     "system_example",
+    "with_ros2",
     "write_deployment",
 ]
 
@@ -105,12 +106,16 @@ def load_system(name_or_path: str) -> System:
     if path is None or not path.is_file():
         folders = shared_dirs("docs/examples/systems")
         examples = sorted({f.stem for folder in folders for f in folder.glob("*.toml")})
-        close = difflib.get_close_matches(name_or_path, [*BUILTIN_SYSTEMS, *examples], n=1)
+        # a path is matched by its file's name: docs/examples/cartpole.toml -> cart-pole,
+        # which any folder finds by that name
+        stem = Path(name_or_path).name.removesuffix(".toml")
+        close = difflib.get_close_matches(stem, [*BUILTIN_SYSTEMS, *examples], n=1)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
         raise SystemFileError(
-            f"{name_or_path}: no such built-in scenario, example or file{hint}; built-ins: "
-            + ", ".join(BUILTIN_SYSTEMS)
-            + (f"; examples: {', '.join(examples)}" if examples else "")
+            f"{name_or_path}: no such built-in scenario, example or file{hint}; give a "
+            f"built-in ({', '.join(BUILTIN_SYSTEMS)}), an example by its name "
+            + (f"({', '.join(examples)}) " if examples else "")
+            + "or a system file's path"
         )
     try:
         table = tomllib.loads(path.read_text())
@@ -168,6 +173,28 @@ def write_deployment(table: dict[str, Any], folder: Path, name: str) -> Path:
 def load_deployment(name_or_path: str | None) -> Deployment:
     """The checked Deployment of a file by name or path (see :func:`resolve`)."""
     path = resolve(name_or_path)
+    return deployment_from_table(_read(path), str(path))
+
+
+def with_ros2(
+    name_or_path: str | None, endpoint: str | None = None
+) -> tuple[Deployment, dict[str, Any]]:
+    """The deployment of a file (see :func:`resolve`) with its ROS 2 gateway on (``ddvi run
+    --ros2 [ENDPOINT]``), at ``endpoint`` (None: its ``[ros2]`` table's), checked, and its
+    table: what the run folder keeps as the deployment the run flies."""
+    path = resolve(name_or_path)
+    table = _read(path)
+    ros2 = table.setdefault("ros2", {})
+    if not isinstance(ros2, dict):
+        raise DeploymentError(f"ros2: expected a table, got {ros2!r}")
+    ros2["enabled"] = True
+    if endpoint is not None:
+        ros2["endpoint"] = endpoint
+    return deployment_from_table(table, str(path)), table
+
+
+def _read(path: Path) -> dict[str, Any]:
+    """The TOML table of the deployment file ``path``; DeploymentError saying why not."""
     try:
         table = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
@@ -179,4 +206,4 @@ def load_deployment(name_or_path: str | None) -> Deployment:
         ) from None
     except OSError as exc:
         raise DeploymentError(f"{path}: cannot read it ({exc.strerror})") from None
-    return deployment_from_table(table, str(path))
+    return table

@@ -11,6 +11,7 @@ checked in ``services.config.wiring``.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import fields, replace
 from typing import Any
@@ -20,18 +21,20 @@ from ddvi_core.relnav import FRAMES
 from ddvi_core.tables import from_table
 from services.config.deployment import (
     FAULT_KINDS,
+    ROS2_TOPICS,
     Deployment,
     DeploymentError,
     Deputy,
     Fault,
 )
-from services.config.ranges import MAX_AREA_FACTOR, check_bias, check_ranges
+from services.config.ranges import ENDPOINT, MAX_AREA_FACTOR, check_bias, check_ranges
 from services.config.wiring import check_hosts, check_links, check_restarts
 
 __all__ = [
     "CHECKS",
     "check_fault",
     "check_panel",
+    "check_ros2_endpoint",
     "deployment_from_table",
     "validate",
 ]
@@ -102,13 +105,16 @@ def check_bodies(dep: Deployment) -> None:
 
 def _check_deputy_craft(w: str, d: Deputy) -> None:
     """A deputy's controller, orbit, panel and attitude limit."""
-    if d.controller not in ("lqr", "ddvi"):
-        raise DeploymentError(f"{w}.controller: expected 'lqr' or 'ddvi', got {d.controller!r}")
+    _one_of(f"{w}.controller", d.controller, CONTROLLERS)
     _positive(f"{w}.orbit.a", d.orbit.a)
     _positive(f"{w}.area_factor", d.area_factor)
     if not 0 < d.attitude_limit <= 1:
         raise DeploymentError(f"{w}.attitude_limit: expected 0 < limit <= 1 (MRP)")
 
+
+CONTROLLERS = ("lqr", "ddvi", "ros2")
+"""deputy.controller: the model-based LQR, the learner, or a ROS 2 node's commands through the
+ROS 2 gateway (docs/ros2.md)."""
 
 NAV_FILTERS = ("kalman", "none")
 """navigation.filter: a Kalman filter on the Hill state (ddvi_core.navfilter), or none."""
@@ -324,6 +330,59 @@ def check_faults(dep: Deployment) -> None:
         check_fault(dep, w, f)
 
 
+ROS_DOMAIN_IDS = range(233)
+"""The ROS 2 domain ids (``ROS_DOMAIN_ID``): 0 to 232."""
+ROS_NAME_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+"""One token of a ROS 2 topic name: a deputy's name is one in its topics' names."""
+
+
+def check_ros2_endpoint(endpoint: str) -> int:
+    """The port of a ROS 2 endpoint ``tcp/HOST:PORT`` (rmw_zenoh's kind of endpoint); ValueError
+    saying what to give."""
+    match = ENDPOINT.match(endpoint) if isinstance(endpoint, str) else None
+    if match is None or match.group(1) != "tcp" or not 0 < int(match.group(3)) < 65536:
+        raise ValueError(
+            f"expected a Zenoh endpoint tcp/HOST:PORT (rmw_zenoh's router is "
+            f"tcp/127.0.0.1:7447), got {endpoint!r}"
+        )
+    return int(match.group(3))
+
+
+def check_ros2(dep: Deployment) -> None:
+    """[ros2]: an endpoint that is not the run's own bus, a ROS domain id, known topics; with
+    the gateway on, deputy names that are ROS 2 name tokens."""
+    ros2 = dep.ros2
+    try:
+        port = check_ros2_endpoint(ros2.endpoint)
+    except ValueError as exc:
+        raise DeploymentError(f"ros2.endpoint: {exc}") from None
+    if port == dep.bus.port:
+        raise DeploymentError(
+            f"ros2.endpoint: port {port} is bus.port, the run's own bus; the ROS 2 side is "
+            "another Zenoh network: give it another port"
+        )
+    if ros2.domain_id not in ROS_DOMAIN_IDS:
+        raise DeploymentError(f"ros2.domain_id: expected 0 to 232, got {ros2.domain_id}")
+    for k, topic in enumerate(ros2.topics):
+        _one_of(f"ros2.topics[{k}]", topic, ROS2_TOPICS)
+        if topic in ros2.topics[:k]:
+            raise DeploymentError(f"ros2.topics[{k}]: {topic!r} is given twice")
+    if not ros2.enabled:
+        for k, d in enumerate(dep.deputy):
+            if d.controller == "ros2":
+                raise DeploymentError(
+                    f"deputy[{k}].controller: 'ros2' flies on a ROS 2 node's commands, which "
+                    "come through the ROS 2 gateway: set [ros2] enabled = true or run with --ros2"
+                )
+        return
+    for k, d in enumerate(dep.deputy):
+        if not ROS_NAME_TOKEN.fullmatch(d.name):
+            raise DeploymentError(
+                f"deputy[{k}].name: {d.name!r} names ROS 2 topics (/{d.name}/odom), whose "
+                "tokens start with a letter or _: rename it, or turn [ros2] off"
+            )
+
+
 CHECKS: tuple[Callable[[Deployment], None], ...] = (
     check_ranges,  # first: every number finite and physical (services.config.ranges)
     check_run,
@@ -335,6 +394,7 @@ CHECKS: tuple[Callable[[Deployment], None], ...] = (
     check_restarts,
     check_faults,
     check_hosts,
+    check_ros2,
 )
 """The semantic checks, in the order they run."""
 

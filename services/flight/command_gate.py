@@ -19,13 +19,14 @@ import queue
 import time
 from collections.abc import Callable
 
+from services.bus import worth_saying
 from services.flight.control_loop import newest_sample_time
 from services.flight.environment_model import CommandsInForce
 from services.flight.health import HANG_MARGIN, HangError, Waiting
 from services.flight.inputs import LOST, OBSERVED, PRESENCE
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext
-from services.interface import Message, command_topic, fault_topic
+from services.interface import ROS2_GATEWAY, Message, command_topic, fault_topic
 
 RECORDED_TAG = "recorded"  # inbox tag: the monitor's acknowledgement of what it recorded
 RECORDER_PRESENCE = "recorder presence"  # inbox tag: the monitor's liveliness change
@@ -69,6 +70,14 @@ class CommandGate:
         dep = ctx.deployment
         self.run, self.fsw = dep.run, dep.run.fsw_period
         self.deputies = [d.name for d in dep.deputy]
+        # who puts each deputy's commands: its controller, or the ROS 2 gateway for a deputy
+        # flown from ROS 2 (behind which its ROS 2 node is what a silence blames)
+        self.commander = {sc: dep.commander(sc) for sc in self.deputies}
+        self.behind = {
+            sc: f"the ROS 2 node flying {sc} (through {who})"
+            for sc, who in self.commander.items()
+            if who == ROS2_GATEWAY
+        }
         self.now = 0.0  # the step being taken
         self.seen_for_t = dict.fromkeys(self.deputies, -math.inf)  # newest accounted for
         self.away_since: dict[str, float] = {}  # wall time each away controller went
@@ -76,7 +85,7 @@ class CommandGate:
         # a command issued at T reaches the truth at T + the link's delay (docs/design.md,
         # "Time")
         self.cmd_delay = {
-            sc: self.bus.latency(f"ctrl-{sc}", command_topic(sc)) for sc in self.deputies
+            sc: self.bus.latency(self.commander[sc], command_topic(sc)) for sc in self.deputies
         }
 
     def expected_step(self, sc: str, t_k: float) -> float:
@@ -99,14 +108,16 @@ class CommandGate:
             late = self.awaited(t_k, expected)
             if wait and late and waiting.said_at(time.monotonic()):
                 counters["paused_steps"] += 1
-                names = ", ".join(f"{what} from {name}" for name, what in late)
+                names = ", ".join(f"{what} from {name}" for name, what, _ in late)
                 self.ctx.log(
                     "warning",
                     f"lock-step paused at t = {t_k:.0f} s: no {names} for {waiting.said:g} s",
                     t_k,
                 )
             if wait and late and waiting.over(time.monotonic()):
-                raise HangError(*late[0], t_k, self.run.hang_timeout)
+                service, what, sc = late[0]
+                behind = self.behind.get(sc, "") if sc else ""
+                raise HangError(service, what, t_k, self.run.hang_timeout, behind=behind)
             waits = [waiting.until] if late else []
             waits += [u for sc in deputies if (u := self.returning(sc)) is not None]
             try:
@@ -130,7 +141,8 @@ class CommandGate:
             elif kind == RECORDER_PRESENCE:
                 self.recorder.presence(msg[1])
             elif kind == PRESENCE:
-                self.on_presence(msg[0].removeprefix("ctrl-"), msg[1], t_k)
+                for sc in self.commanded_by(msg[0]):
+                    self.on_presence(sc, msg[1], t_k)
             elif kind == LOST:
                 self.on_lost(msg, expected)
             else:
@@ -139,17 +151,22 @@ class CommandGate:
             self.commands.count_missing(expected)
         counters["controller_away_steps"] += len(set(deputies) - self.present)
 
-    def awaited(self, t_k: float, expected: dict[str, float]) -> list[tuple[str, str]]:
-        """What the step at t_k still waits for, as (service, what) pairs: each silent
-        controller's command, then the recorder's acknowledgement."""
+    def awaited(self, t_k: float, expected: dict[str, float]) -> list[tuple[str, str, str]]:
+        """What the step at t_k still waits for, as (service, what, deputy) triples: each
+        silent commander's command (a controller's, or the ROS 2 gateway's for a deputy flown
+        from ROS 2), then the recorder's acknowledgement (no deputy)."""
         late = [
-            (f"ctrl-{sc}", "command")
+            (self.commander[sc], "command" if sc not in self.behind else f"command for {sc}", sc)
             for sc in self.deputies
             if self.outstanding(sc, t_k, expected[sc])
         ]
         if self.recorder.behind(t_k):
-            late.append((RECORDER, "acknowledgement of the recording"))
+            late.append((RECORDER, "acknowledgement of the recording", ""))
         return late
+
+    def commanded_by(self, service: str) -> list[str]:
+        """The deputies whose commands ``service`` puts."""
+        return [sc for sc, who in self.commander.items() if who == service]
 
     def outstanding(self, sc: str, t_k: float, expected: float) -> bool:
         """The step at t_k waits for the command of ``sc`` for step ``expected``."""
@@ -170,8 +187,21 @@ class CommandGate:
         return until if until > time.monotonic() else None
 
     def on_command(self, kind: str, msg: Message, expected: dict[str, float]) -> None:
-        """A command delivered (``CommandsInForce.deliver``), or observed by its link."""
+        """A command delivered (``CommandsInForce.deliver``), or observed by its link; one
+        from another service than the deputy's commander (the topology lets the ROS 2 gateway
+        command any deputy, the run only those flown from ROS 2) is refused and counted."""
         sc, for_t = msg.body["sc"], msg.body["for_t"]
+        if msg.src != self.commander.get(sc, msg.src):
+            if kind != OBSERVED:  # counted once, when it is delivered (none in a clean run)
+                n = self.counters["foreign_commands"] = self.counters.get("foreign_commands", 0) + 1
+                if worth_saying(n):
+                    self.ctx.log(
+                        "warning",
+                        f"refused a command for {sc} from {msg.src}: {self.commander[sc]} "
+                        f"commands {sc} (#{n})",
+                        self.now,
+                    )
+            return
         if kind != OBSERVED:
             self.commands.deliver(sc, for_t, msg.body["sigma"], self.now, expected.get(sc, 0.0))
         elif sc in self.seen_for_t and for_t <= self.now + 1e-6:

@@ -41,7 +41,15 @@ from services.flight.host import Listen, ServiceHost, Watch
 from services.flight.inputs import PRESENCE
 from services.flight.recorder_lead import RECORDER, RecorderLead
 from services.flight.runtime import ServiceContext, run_service
-from services.interface import CLOCK, EXOSTATE, RECORDED, Message, command_topic, truth_topic
+from services.interface import (
+    CLOCK,
+    EXOSTATE,
+    RECORDED,
+    ROS2_GATEWAY,
+    Message,
+    command_topic,
+    truth_topic,
+)
 from services.model import ReentryError, Truth, duration, on_grid, open_truth
 
 
@@ -85,6 +93,8 @@ class EnvironmentService:
             Watch("ctrl-*", PRESENCE),
             Watch(RECORDER, RECORDER_PRESENCE),
         )
+        if any(dep.commander(d.name) == ROS2_GATEWAY for d in dep.deputy):
+            self.inputs += (Watch(ROS2_GATEWAY, PRESENCE),)  # it commands them
         self.model = EnvironmentModel(dep, truth)
         self.names = self.model.names
         self.dt, self.fsw, self.t_end = run.nav_period, run.fsw_period, duration(dep)
@@ -110,7 +120,7 @@ class EnvironmentService:
             missing = sorted(set(others) - alive)
             self.ctx.log("error", f"services not alive after {run.startup_timeout} s: {missing}")
             return 1
-        present = {d.name for d in dep.deputy if f"ctrl-{d.name}" in alive}  # waited for
+        present = {d.name for d in dep.deputy if dep.commander(d.name) in alive}  # waited for
         recorder = RecorderLead(run.fsw_period, present=RECORDER in alive)
         self.commands = CommandGate(
             self.ctx, self.model.commands, inbox, present, self.counters, self.on_fault, recorder

@@ -33,14 +33,22 @@ ROUTER = "the run's router (the launcher's process)"
 
 class HangError(Exception):
     """Lock-step cannot go on: ``service`` has not given its ``what`` for the step at ``t`` in
-    ``seconds`` wall seconds.  The message names the part that froze: ``service``, or with
+    ``seconds`` wall seconds.  The message names the part that froze: ``service`` (or
+    ``behind``, what the service relays: a ROS 2 node behind the ROS 2 gateway), or with
     ``router_silent`` the run's router, which relays them all (``hung`` is that part)."""
 
     def __init__(
-        self, service: str, what: str, t: float, seconds: float, router_silent: bool = False
+        self,
+        service: str,
+        what: str,
+        t: float,
+        seconds: float,
+        router_silent: bool = False,
+        behind: str = "",
     ) -> None:
         self.service, self.what, self.t, self.seconds = service, what, t, seconds
-        self.hung = ROUTER if router_silent else service
+        self.behind = behind
+        self.hung = ROUTER if router_silent else (behind or service)
         said = f"lock-step stalled at t = {t:.0f} s: no {what} from {service} in {seconds:g} s"
         if router_silent:
             said += " (run.hang_timeout), and the router does not answer"
@@ -50,7 +58,9 @@ class HangError(Exception):
 
     def router_silent(self) -> HangError:
         """The same stall, blamed on the router."""
-        return HangError(self.service, self.what, self.t, self.seconds, router_silent=True)
+        return HangError(
+            self.service, self.what, self.t, self.seconds, router_silent=True, behind=self.behind
+        )
 
 
 class Waiting:

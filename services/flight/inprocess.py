@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from services.bus.links import LinkModel, link_seed
-from services.config import Deployment
+from services.config import Deployment, DeploymentError
 from services.flight.control import Controller
 from services.flight.control_loop import (
     ControlLoop,
@@ -179,7 +179,13 @@ def run_in_process(dep: Deployment, timing: dict[str, float] | None = None) -> d
     ``timing``, if given, gets the wall seconds of each service's share: ``environment``
     (truth, exostate), ``nav-<deputy>`` (states, bias, noise, filter), ``ctrl-<deputy>``
     (controller and learning), and ``steps``, the flight-software steps.  Raises
-    ``services.model.ReentryError`` if a craft re-enters."""
+    ``services.model.ReentryError`` if a craft re-enters, and DeploymentError for a deputy flown
+    from ROS 2 (its node is no component of this process)."""
+    if flown := [d.name for d in dep.deputy if d.controller == "ros2"]:
+        raise DeploymentError(
+            f"deputies {flown} are flown from ROS 2 (controller = 'ros2'): the one-process "
+            "executor has no ROS 2 node; fly them with ddvi run"
+        )
     mission = LockStepMission(dep)
     truth = open_truth(dep)
     try:

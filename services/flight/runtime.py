@@ -236,7 +236,7 @@ def mission_window(dep: Deployment) -> tuple[float, float]:
 def rate_budget(dep: Deployment, run: str) -> RateBudget:
     """What a service takes from each publisher of ``run`` (``services.bus.budget``)."""
     r = dep.run
-    return budget_for(f"ddvi/{run}/", r.nav_period, r.fsw_period, r.status_every)
+    return budget_for(f"ddvi/{run}/", r.nav_period, r.fsw_period, r.status_every, dep.publisher_of)
 
 
 def bus_settings(dep: Deployment, hub: str, credentials: Credentials | None = None) -> BusSettings:

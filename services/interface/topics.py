@@ -29,6 +29,9 @@ EXOSTATE = "exo/state"
 RECORDED = "recorded"
 """The monitor's acknowledgement of what it has recorded (lock-step waits for the recorder)."""
 
+ROS2_GATEWAY = "ros2-gateway"
+"""The service that carries a run's topics to ROS 2 (a deployment's ``[ros2]``)."""
+
 
 def truth_topic(craft: str) -> str:
     """``truth/<craft>``: the environment's inertial state of one craft (chief or deputy)."""
@@ -43,6 +46,14 @@ def nav_state_topic(deputy: str) -> str:
 def command_topic(deputy: str) -> str:
     """``cmd/<deputy>/att``: a controller's attitude command for one deputy."""
     return f"cmd/{deputy}/att"
+
+
+def command_deputy(topic: str) -> str | None:
+    """The deputy a command topic ``cmd/<deputy>/att`` is for; None for any other topic."""
+    parts = topic.split("/")
+    if len(parts) == 3 and parts[0] == "cmd" and parts[2] == "att" and parts[1]:
+        return parts[1]
+    return None
 
 
 def gains_topic(deputy: str) -> str:
@@ -142,11 +153,17 @@ SERVICES: tuple[ServiceName, ...] = (
     ServiceName(
         "ground-<pid>", "services.ground.launch.faults", "an operator's `ddvi fault` command"
     ),
+    ServiceName(
+        ROS2_GATEWAY,
+        "services.ros2.gateway.service",
+        "carries the run's topics to ROS 2 over rmw_zenoh (`ddvi run --ros2`, docs/ros2.md)",
+    ),
 )
 """Every kind of participant on the bus, by name."""
 
-_EVERY_SERVICE = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", "launcher")
-_FLIGHT_RUNTIME = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor")  # services.flight.runtime
+_EVERY_SERVICE = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", "launcher", ROS2_GATEWAY)
+# what services.flight.runtime runs
+_FLIGHT_RUNTIME = ("environment", "nav-<sc>", "ctrl-<sc>", "monitor", ROS2_GATEWAY)
 
 
 @dataclass(frozen=True)
@@ -176,7 +193,7 @@ TOPOLOGY: tuple[Route, ...] = (
         CLOCK,
         "clock",
         ("environment",),
-        ("nav-<sc>", "ctrl-<sc>", "monitor", "launcher", "ground-<pid>"),
+        ("nav-<sc>", "ctrl-<sc>", "monitor", "launcher", "ground-<pid>", ROS2_GATEWAY),
         "every flight-software step (run.fsw_period) in lock-step, every navigation sample "
         "(run.nav_period) in real time, and a final one",
         budget="nav",
@@ -192,7 +209,7 @@ TOPOLOGY: tuple[Route, ...] = (
         truth_topic("<craft>"),
         "truth",
         ("environment",),
-        ("nav-<sc>", "monitor"),
+        ("nav-<sc>", "monitor", ROS2_GATEWAY),
         "every navigation sample (run.nav_period), for the chief and every deputy; "
         "nav-<sc> takes truth/chief and truth/<sc>",
         identity=(("sc", "craft"),),
@@ -201,16 +218,17 @@ TOPOLOGY: tuple[Route, ...] = (
         nav_state_topic("<sc>"),
         "nav",
         ("nav-<sc>",),
-        ("ctrl-<sc>", "monitor"),
+        ("ctrl-<sc>", "monitor", ROS2_GATEWAY),
         "every navigation sample of the deputy (its navigation.period)",
         identity=_DEPUTY,
     ),
     Route(
         command_topic("<sc>"),
         "cmd",
-        ("ctrl-<sc>",),
-        ("environment", "monitor"),
-        "every flight-software step (run.fsw_period)",
+        ("ctrl-<sc>", ROS2_GATEWAY),
+        ("environment", "monitor", ROS2_GATEWAY),
+        "every flight-software step (run.fsw_period); the ROS 2 gateway's for a deputy flown "
+        "from ROS 2 (controller = ros2), its controller's for any other",
         budget="fsw",
         identity=_DEPUTY,
     ),
@@ -218,7 +236,7 @@ TOPOLOGY: tuple[Route, ...] = (
         gains_topic("<sc>"),
         "gains",
         ("ctrl-<sc>",),
-        ("monitor",),
+        ("monitor", ROS2_GATEWAY),
         "at the start, every flight-software step while exploring, on learning, and at the end",
         budget="fsw",
         identity=_DEPUTY,
@@ -227,7 +245,7 @@ TOPOLOGY: tuple[Route, ...] = (
         status_topic("<sc>"),
         "status",
         ("ctrl-<sc>",),
-        ("monitor",),
+        ("monitor", ROS2_GATEWAY),
         "every run.status_every flight-software steps, and at the end",
         budget="status",
         identity=_DEPUTY,
@@ -285,7 +303,7 @@ TOPOLOGY: tuple[Route, ...] = (
         stats_topic("<service>"),
         "stats",
         _EVERY_SERVICE,
-        ("monitor",),
+        ("monitor", ROS2_GATEWAY),
         "every run.status_every flight-software steps (environment, controllers), after every "
         "restart or kill (launcher), and at each service's end",
         budget="status",
@@ -295,7 +313,7 @@ TOPOLOGY: tuple[Route, ...] = (
         log_topic("<service>"),
         "log",
         _EVERY_SERVICE,
-        ("monitor", "ground-<pid>"),
+        ("monitor", "ground-<pid>", ROS2_GATEWAY),
         "on an event: a fault acted on, a learning outcome, a warning",
         identity=_SERVICE,
     ),
@@ -418,9 +436,11 @@ def budget_period(topic: str) -> str | None:
 
 @functools.lru_cache(maxsize=4096)
 def publisher_of(topic: str) -> str | None:
-    """The one service that may publish ``topic`` (e.g. ``ctrl-lqr`` for ``cmd/lqr/att``,
-    ``nav-lqr`` for ``stats/nav-lqr``); ``ground`` for a ground command's; None for a topic
-    outside the topology."""
+    """The service that publishes ``topic`` (e.g. ``ctrl-lqr`` for ``cmd/lqr/att``, ``nav-lqr``
+    for ``stats/nav-lqr``): its route's first publisher, so a command topic's is the deputy's
+    controller (a deployment gives a ROS 2-flown deputy's to the gateway:
+    ``Deployment.publisher_of``); ``ground`` for a ground command's; None for a topic outside
+    the topology."""
     found = _route_of(topic)
     if found is None:
         return None
@@ -428,7 +448,7 @@ def publisher_of(topic: str) -> str | None:
     if "service" in names:
         return names["service"]
     template = route.publishers[0]
-    if len(route.publishers) > 1 or "<pid>" in template:
+    if "<pid>" in template:
         return template.split("-<", 1)[0]
     return _PLACEHOLDER.sub(lambda m: names.get(m.group(1), m.group(0)), template)
 

@@ -27,6 +27,7 @@ from services.model.mission import (
     on_grid,
     orbit_period,
     panel_schedule,
+    reference_gains,
     true_lqr_gains,
     true_problem,
 )
@@ -61,6 +62,7 @@ __all__ = [
     "open_truth",
     "orbit_period",
     "panel_schedule",
+    "reference_gains",
     "true_lqr_gains",
     "true_problem",
     "truth_atmosphere",

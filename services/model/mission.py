@@ -8,6 +8,7 @@ whether a deputy's drag can hold its slot.  The truth backends are ``services.mo
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import TYPE_CHECKING
 
@@ -18,6 +19,8 @@ from ddvi_core.constants import MU_EARTH
 from ddvi_core.orbit import elements_to_rv
 from ddvi_core.relnav import relative_state
 from services.config import Deployment, Deputy, Orbit
+
+log = logging.getLogger("ddvi.model")
 
 if TYPE_CHECKING:
     from ddvi_core.models import DragRendezvous
@@ -139,6 +142,21 @@ def true_lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
     """K* (1,4) and L* (1,5): the optimal gains of :func:`true_problem`, the reference every
     learned gain is scored against (equal to :func:`lqr_gains` when the truth is nominal)."""
     return _optimal_gains(true_problem(dep, deputy))
+
+
+def reference_gains(
+    dep: Deployment, deputy: Deputy
+) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run
+    (:func:`true_lqr_gains`), or (None, None) when it has none (no drag in the truth, or no
+    stabilising solution): what a learned gain is scored against, and what the live view and
+    ROS 2 show beside the flown gains."""
+    try:
+        K, L = true_lqr_gains(dep, deputy)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
+        return None, None
+    return np.asarray(K), np.asarray(L)
 
 
 def navigation_state(

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 
 import pytest
 
@@ -83,3 +84,35 @@ def test_the_table_shows_brackets_literally(
     assert "pip install -e '.[basilisk]'" in out
     assert "plain [bold]" in out and "FAILED: no [cluster] here" in out
     assert "| met" in out.replace("│", "|") and "| missed" in out.replace("│", "|")
+
+
+def test_quick_bench_without_the_optional_packages_skips_and_lists_them(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """A plain installation (no test extra, no Basilisk), as ``ddvi bench --quick`` meets it:
+    the live benchmark's client and the Basilisk truth cannot be imported.  Each is skipped
+    before anything is launched, its row and the list after the table say why, and the
+    command completes."""
+    from benchmarks import live
+    from services.cli import main
+
+    for module in ("websockets", "Basilisk"):
+        monkeypatch.setitem(sys.modules, module, None)  # `import` raises ImportError
+
+    def launched(*args: object, **kw: object) -> None:
+        raise AssertionError(f"a skipped benchmark launched {args}")
+
+    monkeypatch.setattr(live.subprocess, "Popen", launched)
+    assert main(["bench", "--quick", "--only", "live", "basilisk"]) == 0
+    out = capsys.readouterr().out
+    said = {
+        "live": "websockets (the benchmark's Foxglove client) is not installed "
+        "(pip install -e '.[test]')",
+        "basilisk": "Basilisk is not installed (pip install -e '.[basilisk]')",
+    }
+    listed = out.split("skipped 2 benchmarks:\n", 1)[1].splitlines()
+    assert listed == [f"  {name}: {why}" for name, why in said.items()]
+    assert main(["bench", "--quick", "--json", "--only", "live", "basilisk"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["meta"]["skipped"] == said
+    assert [r["metric"] for r in doc["rows"]] == [f"skipped: {why}" for why in said.values()]

@@ -74,6 +74,18 @@ def test_access_control_gives_each_user_its_topics_only() -> None:
     assert not any("fault" in k for u in USERS if u != OPERATOR for k in _puts(acl, u))
 
 
+def test_the_ros2_gateway_puts_its_stats_log_and_the_commands_of_ros2_deputies_only() -> None:
+    p = f"ddvi/{RUN}/"
+    own = {p + "stats/ros2-gateway", p + "log/ros2-gateway"}
+    acl = access_control(RUN, [*USERS, "ros2-gateway"])
+    assert set(_puts(acl, "ros2-gateway")) == own  # it flies nobody
+    tokens = [r["key_exprs"] for r in acl["rules"] if r["id"] == "alive ros2-gateway"]
+    assert tokens == [[p + "alive/ros2-gateway"]]
+    flying = access_control(RUN, [*USERS, "ros2-gateway"], ["rosd"])
+    assert set(_puts(flying, "ros2-gateway")) == own | {p + "cmd/rosd/att"}
+    assert set(_puts(flying, "ctrl-lqr")) == set(_puts(acl, "ctrl-lqr"))
+
+
 def test_credentials_are_private_files_never_alike(tmp_path: Path) -> None:
     issued = issue_credentials(tmp_path, ["nav-lqr", "ctrl-lqr"])
     assert set(issued) == {"nav-lqr", "ctrl-lqr", ROUTER}

@@ -66,6 +66,9 @@ BAD_VALUES: dict[str, list[Any]] = {
     "bus.port": [-1, 70000],
     "bus.connect": [["garbage"], ["tcp/127.0.0.1:99999"], ["tcp/:7447"]],
     "run.name": ["../escape", "a/b", "", ".hidden", "x" * 65, "../../../tmp/x"],
+    "ros2.endpoint": ["garbage", "udp/127.0.0.1:7447", "tcp/127.0.0.1:0", "tcp/127.0.0.1"],
+    "ros2.domain_id": [-1, 233],
+    "ros2.topics": [["odometry"], ["clock", "clock"]],
 }
 
 
@@ -130,6 +133,15 @@ def _cases() -> list[Case]:
             cases.append((name, _deployment_case(_set(BASE, key, value)), _leaf(key)))
     swarm = _set(BASE, "deputy", [{"name": f"d{k}"} for k in range(1000)])
     cases.append(("1000 deputies", _deployment_case(swarm), "deputies"))
+    gateway = _set(_set(BASE, "ros2.enabled", True), "deputy.0.name", "1st")
+    cases.append(("a deputy no ROS 2 name can hold", _deployment_case(gateway), "deputy[0].name"))
+    same_port = _set(_set(BASE, "bus.port", 7447), "ros2.enabled", True)
+    cases.append(("ROS 2 on the run's bus port", _deployment_case(same_port), "ros2.endpoint"))
+    for bad in ("garbage", "tcp/127.0.0.1:70000"):
+        ros2 = _deployment_case(BASE)
+        cases.append(
+            (f"run --ros2 {bad}", lambda f, ros2=ros2, bad=bad: [*ros2(f), "--ros2", bad], "--ros2")
+        )
     link = {"publisher": "ctrl-*", "subscriber": "environment", "delay": 1e9}
     cases.append(("link delay 1e9 s", _deployment_case(_set(BASE, "link", [link])), "link"))
     cases += [

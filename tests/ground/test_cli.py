@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,8 @@ import pytest
 import scipy.linalg
 
 from services.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
 
 DOUBLE_INTEGRATOR = """
 name = "double-integrator"
@@ -129,9 +132,36 @@ def test_unknown_system_name_suggests_the_builtin(capsys):
     assert code == 2 and "did you mean 'rendezvous'" in err
 
 
-def test_unknown_system_name_suggests_the_shipped_example(capsys):
-    code, _, err = run(capsys, "check", "cartpole")
-    assert code == 2 and "did you mean 'cart-pole'" in err and "examples: " in err
+EXAMPLES = sorted(p.stem for p in (ROOT / "docs" / "examples" / "systems").glob("*.toml"))
+
+
+@pytest.mark.parametrize(
+    ("command", "given"),
+    [
+        ("check", "cartpole"),
+        ("learn", "cartpole"),
+        ("check", "docs/examples/cartpole.toml"),
+        ("learn", "docs/examples/systems/cartpole.toml"),
+    ],
+)
+def test_a_system_not_found_is_one_line_with_a_did_you_mean_and_every_example(
+    capsys, command, given
+):
+    """A name or a path one typo off an example: exit 2, one line naming the command, the
+    example meant and every example system by name."""
+    code, _, err = run(capsys, command, given)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"ddvi {command}: {given}: no such built-in scenario, example or file")
+    assert "(did you mean 'cart-pole'?)" in err
+    assert f"an example by its name ({', '.join(EXAMPLES)})" in err
+    assert len(EXAMPLES) == 8
+
+
+def test_the_examples_readme_lists_every_example_system():
+    readme = (ROOT / "docs" / "examples" / "README.md").read_text()
+    listed = sorted(re.findall(r"^\| `([a-z0-9-]+)\.toml` \|", readme, flags=re.MULTILINE))
+    assert listed == EXAMPLES
+    assert "holds eight linear regulation problems" in readme
 
 
 def test_rank_deficient_data_prints_the_report_not_a_gain(capsys, tmp_path):

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -55,16 +56,70 @@ def test_learn_help_explains_every_method_and_the_default(capsys: pytest.Capture
     assert "(default: ddvi)" in out
 
 
+def _commands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, Any]:
+    """Every command and sub-command (``sweep noise``) of ``parser``, by its words."""
+    found: dict[str, Any] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                found[f"{prefix}{name}"] = sub
+                found.update(_commands(sub, f"{prefix}{name} "))
+    return found
+
+
 def test_every_option_of_every_command_has_help() -> None:
-    parser = build_parser()
-    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    commands = _commands(build_parser())
+    assert {"sweep delay", "sweep loss", "sweep noise"} <= set(commands)
     bare = [
         f"{name} {'/'.join(action.option_strings) or action.dest}"
-        for name, sub in commands.choices.items()
+        for name, sub in commands.items()
         for action in sub._actions
         if not isinstance(action, argparse._HelpAction) and not action.help
     ]
     assert not bare, bare
+
+
+def test_each_sweep_kind_has_its_own_help(capsys: pytest.CaptureFixture) -> None:
+    """``ddvi sweep KIND --help`` says what that sweep varies and takes only its options;
+    ``ddvi sweep --help`` names the kinds."""
+    code, out, _ = run(capsys, "sweep", "--help")
+    assert code == 0 and "what to sweep (ddvi sweep KIND --help)" in out
+    helps = {}
+    for kind in ("delay", "loss", "noise"):
+        code, helps[kind], _ = run(capsys, "sweep", kind, "--help")
+        assert code == 0 and helps[kind].startswith(f"usage: ddvi sweep {kind} ")
+        assert f"sweep-{kind}-<run name>-<stamp>" in " ".join(helps[kind].split())
+    assert "The mission once per delay" in helps["delay"] and "s (simulation time" in helps["delay"]
+    assert "The mission once per loss rate" in helps["loss"]
+    assert "loss probabilities in [0, 1]" in helps["loss"]
+    noise = " ".join(helps["noise"].split())
+    assert "navigation.position_noise = v" in noise and "--mismatch" in noise
+    assert "--filter {kalman,none}" in noise
+    for kind in ("delay", "loss"):
+        assert "--mismatch" not in helps[kind] and "--filter" not in helps[kind]
+
+
+def test_an_option_another_command_takes_is_named_by_the_command_given(
+    capsys: pytest.CaptureFixture,
+) -> None:
+    code, _, err = run(capsys, "sweep", "delay", "--values", "0", "--mismatch", "2")
+    assert code == 2
+    assert err == (
+        "ddvi sweep delay: unrecognized arguments: --mismatch (see ddvi sweep delay --help)\n"
+    )
+    code, _, err = run(capsys, "run", "--bogus")
+    assert code == 2 and err == "ddvi run: unrecognized arguments: --bogus (see ddvi run --help)\n"
+
+
+def test_campaign_help_names_the_shipped_campaigns(capsys: pytest.CaptureFixture) -> None:
+    shipped = sorted(p.stem for p in (ROOT / "deployments" / "campaigns").glob("*.toml"))
+    code, out, _ = run(capsys, "campaign", "--help")
+    assert code == 0 and "shipped campaign's name" in out
+    (file,) = [a for a in _commands(build_parser())["campaign"]._actions if a.dest == "file"]
+    assert file.help.endswith("or a shipped campaign's name: " + ", ".join(shipped))
+    assert "rendezvous-200" in shipped
+    code, _, err = run(capsys, "campaign", "rendezvous200")
+    assert code == 2 and "(did you mean 'rendezvous-200'?)" in err and err.count("\n") == 1
 
 
 @pytest.mark.integration  # starts a Python process

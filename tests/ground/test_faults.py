@@ -7,6 +7,7 @@ import itertools
 import json
 import math
 import os
+import queue
 import signal
 import subprocess
 import sys
@@ -21,7 +22,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.bus import EPHEMERAL_LOOPBACK, BusSettings, zenoh_config
+from services.bus import EPHEMERAL_LOOPBACK, Bus, BusSettings, open_session, zenoh_config
 from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment, resolve
 from services.flight.inprocess import run_in_process
@@ -308,9 +309,14 @@ class Mission:
 
     def kill(self, service: str) -> None:
         """What ``ddvi fault RUN kill SERVICE`` sends, put at once (no CLI start-up)."""
-        body = {"kind": "kill", "target": service, "params": {}}
-        payload = encode("fault", body, seq=0, t=self.t, src="ground-test")
-        key = f"ddvi/{self.run}/{topics.fault_topic('kill')}"
+        self.put_fault("kill", service, {})
+
+    def put_fault(self, kind: str, target: str, params: dict[str, Any]) -> None:
+        """A fault message put on the run's bus as a ground tool would, unchecked (each kind
+        from a publisher of its own: one sequence each)."""
+        body = {"kind": kind, "target": target, "params": params}
+        payload = encode("fault", body, seq=0, t=self.t, src=f"ground-test-{kind}")
+        key = f"ddvi/{self.run}/{topics.fault_topic(kind)}"
         self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def fault(self, *args: str) -> subprocess.CompletedProcess:
@@ -483,8 +489,12 @@ def test_panel_and_bias_faults_scheduled_and_from_the_ground(
     r = mission.fault("outage", "ddvi", "--orbits", "0.05")
     assert r.returncode == 0, r.stdout + r.stderr
     assert "fault outage ddvi: no measurement from t = " in r.stdout
+    # reached by --hub alone, the run's deputies are those alive on its bus: nothing is sent
     r = mission.fault("panel", "nobody", "--area-factor", "1.2")
-    assert r.returncode == 1 and "fault panel nobody: refused" in r.stdout, r.stdout + r.stderr
+    said = f"ddvi fault panel: 'nobody' is not a deputy of run {mission.run!r}; its deputies: "
+    assert r.returncode == 2 and r.stderr == said + "ddvi, lqr\n", r.stdout + r.stderr
+    # the environment refuses such a fault put on the bus (counted in its bad_faults)
+    mission.put_fault("panel", "nobody", {"area_factor": 1.2})
     rc, out, err = mission.finish()
     # 270 s without navigation, past the stale limit (120 s): the safe attitude, exit 3
     assert rc == 3 and "safe attitude flown by ctrl-ddvi" in err, err[-3000:]
@@ -686,6 +696,10 @@ REFUSED_FAULTS: list[tuple[list[str], str]] = [
         "bias: area_factor and normal_angle belong to panel faults, not 'bias'",
     ),
     (["outage", "nobody", "--orbits", "0.1"], "outage.deputy: 'nobody' is not one of lqr, ddvi"),
+    (
+        ["bias", "nosuch", "--position", "1", "0", "0"],
+        "bias.deputy: 'nosuch' is not one of lqr, ddvi",
+    ),
 ]
 """A fault the short mission's deployment refuses, and what ``ddvi fault`` says of it."""
 
@@ -741,3 +755,76 @@ def test_fault_command_errors(args: list[str], status: int, text: str, free_port
     cmd = [sys.executable, "-m", "services.cli", "fault", "norun", *args, "--hub", hub]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert r.returncode == status and text in r.stderr, r.stderr
+
+
+def test_a_fault_for_a_finished_run_says_it_is_over_at_once(
+    tmp_path: Path, free_port: int, capsys: pytest.CaptureFixture
+) -> None:
+    """A run whose folder holds its report (the monitor writes summary.json as the run ends) is
+    over: one line saying so and where its report is, exit 1, without waiting for a clock that
+    will not come or naming the hub it flew on."""
+    folder = _run_folder(tmp_path, free_port)
+    (folder / "summary.json").write_text("{}")
+    assert ddvi(["fault", str(folder), "kill", "ctrl-lqr", "--timeout", "600"]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        f"ddvi fault: run 'short' is over (its report: {folder / 'report.md'}); a fault goes to "
+        "a run while it flies\n"
+    )
+
+
+@pytest.fixture
+def flying_hub(free_port: int) -> Iterator[tuple[str, queue.SimpleQueue]]:
+    """An insecure run 'norun' on a hub the test serves (no run folder: ``ddvi fault --hub``):
+    the environment's clock ticking and the liveliness of the LQR and DDVI deputies'
+    navigation and controllers; yields the hub and what arrives on the fault topics."""
+    endpoint = f"tcp/127.0.0.1:{free_port}"
+    faults: queue.SimpleQueue = queue.SimpleQueue()
+    stop = threading.Event()
+    settings = BusSettings(mode="peer", listen=[endpoint], connect=[])
+    with open_session(settings) as session:
+        buses = [Bus(session, "norun", name) for name in ("environment", *SERVICES)]
+        for bus in buses[1:]:
+            bus.declare_alive()
+        fault_sub = session.declare_subscriber("ddvi/norun/fault/*", faults.put)
+
+        def tick() -> None:
+            clock = {"step": 0, "dt": 10.0, "fsw": True, "mode": "lockstep", "final": False}
+            for k in itertools.count():
+                if stop.wait(0.05):
+                    return
+                buses[0].publish(topics.CLOCK, "clock", {**clock, "step": k}, 10.0 * k)
+
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        try:
+            yield endpoint, faults
+        finally:
+            stop.set()
+            ticker.join()
+            fault_sub.undeclare()
+            for bus in buses:
+                bus.close()
+
+
+SERVICES = ("nav-lqr", "ctrl-lqr", "nav-ddvi", "ctrl-ddvi")
+
+
+def test_a_fault_for_a_deputy_the_run_reached_by_hub_lacks_is_bad_input(
+    flying_hub: tuple[str, queue.SimpleQueue],
+) -> None:
+    """A run reached by --hub alone has no deployment here to check the fault against: its
+    deputies are those whose services are alive on its bus.  One not among them is one line
+    naming them, exit 2, nothing sent; one among them is sent."""
+    hub, faults = flying_hub
+    cmd = [sys.executable, "-m", "services.cli", "fault", "norun", "bias"]
+    bias = ["--position", "1", "0", "0", "--hub", hub, "--timeout", "1"]
+    r = subprocess.run([*cmd, "nosuch", *bias], capture_output=True, text=True, timeout=60)
+    said = "ddvi fault bias: 'nosuch' is not a deputy of run 'norun'; its deputies: ddvi, lqr\n"
+    assert r.returncode == 2 and r.stderr == said, r.stderr
+    # a deputy of the run: sent (nobody here answers for nav-lqr: exit 1)
+    r = subprocess.run([*cmd, "lqr", *bias], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and "no answer from nav-lqr" in r.stderr, r.stderr
+    sent = faults.get(timeout=10)
+    assert str(sent.key_expr) == "ddvi/norun/fault/bias"
+    assert faults.empty()  # the refused fault never went out

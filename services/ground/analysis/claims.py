@@ -34,7 +34,7 @@ from typing import Any
 from services.config import Deployment
 from services.flight.runtime import rate_budget
 from services.interface import MAX_BATCH, Message
-from services.interface.topics import budget_period, publisher_of, stats_topic
+from services.interface.topics import budget_period, stats_topic
 
 log = logging.getLogger("ddvi.monitor")
 
@@ -124,7 +124,7 @@ class Claims:
         # each key as the receivers' RateBudget buckets it
         self.budgets: dict[str, tuple[float, float]] = {}
         for topic in dep.topics():  # the run's topics, as the live view's
-            owner = publisher_of(topic)
+            owner = dep.publisher_of(topic)
             if owner is None:
                 continue
             period = budget.periods.get(budget_period(topic) or "", shortest)

@@ -1,237 +1,304 @@
-"""The run report's figures: the paper's plots, one line per deputy (matplotlib, Agg backend).
+"""The run report's figures: the paper's plots, one line per deputy (matplotlib's object
+interface, drawn by the Agg canvas).
 
-``write_figures`` draws every figure of ``FIGURES`` into the run folder, one function each;
-matplotlib is imported when the figures are drawn, not when this module is.
+``draw_figures`` draws every figure of ``FIGURES`` (``services.ground.analysis.figure_canvas``)
+and returns the matplotlib Figures (what the tests read: axes, labels, scales, legends);
+``write_figures`` saves them as PNGs in the run folder.  The positions and velocities are the
+true state, the commands sigma3, the gains their own figure (``gain_figure``).  matplotlib is
+imported when the figures are drawn, not when this module is.
 """
 
 from __future__ import annotations
 
 import io
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Collection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from services.ground.analysis.rundata import CraftData, DeputySeries, FloatArray, RunData
+from services.ground.analysis.figure_canvas import (
+    ERROR_FLOOR,
+    MARGINS,
+    Canvas,
+    Curve,
+    Margins,
+    Save,
+    legend,
+    time_axes,
+)
+from services.ground.analysis.gain_figure import gains_figure
+from services.ground.analysis.rundata import (
+    CraftData,
+    DeputySeries,
+    FloatArray,
+    GainRecord,
+    RunData,
+)
+from services.ground.analysis.scoring import learned_switches
 
-K_NAMES = ("x", "y", "xdot", "ydot")  # the in-plane state the gain K acts on (mission.IN_PLANE)
-K_UNITS = ("1/m", "1/m", "s/m", "s/m")  # u = sigma3 (an MRP, no unit) per unit of that state
-FIGURES = {
-    "hill_x.png": "Hill x (radial) position vs orbits",
-    "hill_y.png": "Hill y (along-track) position vs orbits",
-    "hill_xy.png": "Hill x vs y",
-    "hill_xdot.png": "Hill x velocity vs orbits",
-    "hill_ydot.png": "Hill y velocity vs orbits",
-    "sigma3.png": "Commanded relative MRP sigma3 vs orbits",
-    "gains.png": "Learned gain K vs orbits, true optimum K* dotted, nominal LQR gain dashed",
-    "along_track_error.png": "|y - y_ref| vs orbits (log scale)",
-}
-"""Figure file name -> its title (after the run's name) and its line in report.md."""
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
-# fixed margins: a layout engine (tight or constrained) costs about as much as drawing
-MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.11, "top": 0.92}
-
-Curve = Callable[[DeputySeries], tuple[FloatArray, FloatArray]]
-"""A deputy's curve: (t (N,) in s, y (N,))."""
-
-
-Save = Callable[[str, bytes], bool]
-"""Writes a figure's PNG bytes under its file name; whether it was written."""
-
-
-@dataclass
-class Canvas:
-    """What every figure of a run shares: the folder, the run, its deputies' series, pyplot,
-    how a figure is saved, and the files written so far (deputy j draws in colour j of the
-    colour cycle)."""
-
-    out: Path
-    data: RunData
-    series: list[DeputySeries]
-    plt: Any
-    write: Save
-    written: list[str] = field(default_factory=list)
-
-    def color(self, j: int) -> str:
-        colors = self.plt.rcParams["axes.prop_cycle"].by_key()["color"]
-        return colors[j % len(colors)]
-
-    def title(self, name: str) -> str:
-        return f"{self.data.run}: {FIGURES[name]}"
-
-    def save(self, fig: Any, name: str) -> None:
-        png = io.BytesIO()  # drawn whole first: on a full disk no part of a figure is left
-        fig.savefig(png, dpi=110, format="png")
-        self.plt.close(fig)
-        if self.write(name, png.getvalue()):
-            self.written.append(name)
-
-
-def legend(ax: Any) -> None:
-    """The axes' legend, when it has a labelled line (a run that failed early may have none:
-    no legend then, and no matplotlib warning)."""
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="best", fontsize="small")
+ENDGAME_SHARE = 0.2
+"""The share of the run (at least one orbit) that hill_y.png's lower panel shows: the end game,
+metres from the slot where the upper panel spans tens of kilometres."""
+NEAR_SLOT_M = 1_000.0
+"""How far from its slot (m, along-track or radial) a deputy may be in the end game or the last
+orbit and still set the scale of their views: one farther is drawn beyond the view and named in
+it, and does not hide the others' metres."""
+EXPLORING_SOURCE = "initial"
+"""The source of the gains a controller flies while it explores (K0)."""
 
 
 def line_figure(
-    canvas: Canvas,
-    name: str,
-    ylabel: str,
-    curve: Curve,
-    log_y: bool = False,
-    refs: bool = False,
-    steps: bool = False,
-) -> None:
-    """One curve per deputy against time in orbits; ``refs``: each deputy's y_ref dotted;
-    ``steps``: drawn as a zero-order hold."""
+    canvas: Canvas, name: str, ylabel: str, curve: Curve, log_y: bool = False
+) -> Figure:
+    """One curve per deputy against time in orbits."""
     # room for log labels like 3.075x10^4 (a span under a decade)
-    margins = {**MARGINS, "left": 0.16} if log_y else MARGINS
-    fig, ax = canvas.plt.subplots(figsize=(8, 4.5), gridspec_kw=margins)
-    P = canvas.data.period
-    for j, s in enumerate(canvas.series):
-        t, y = curve(s)
-        if len(t):
-            style = "steps-post" if steps else "default"
-            ax.plot(t / P, y, color=canvas.color(j), lw=1.0, label=s.label, ds=style)
-            if refs:
-                ax.axhline(s.deputy.y_ref, color=canvas.color(j), ls=":", lw=0.8)
+    fig = canvas.figure(name, (8, 4.5), Margins(left=1.1) if log_y else MARGINS)
+    ax = fig.add_subplot()
+    plot_curves(canvas, ax, curve)
     if log_y:
         ax.set_yscale("log")
-    ax.set_xlabel("time [orbits]")
-    ax.set_ylabel(ylabel)
-    ax.set_title(canvas.title(name))
-    ax.grid(True, alpha=0.3)
+    time_axes(ax, ylabel)
     legend(ax)
-    canvas.save(fig, name)
+    return fig
 
 
-def hill_xy_figure(canvas: Canvas) -> None:
-    """Radial against along-track position, a dot at each deputy's last position."""
-    fig, ax = canvas.plt.subplots(figsize=(6, 6), gridspec_kw=MARGINS)
-    for j, s in enumerate(canvas.series):
-        if len(s.t):
-            ax.plot(s.hill[:, 1], s.hill[:, 0], color=canvas.color(j), lw=1.0, label=s.label)
-            ax.plot(s.hill[-1, 1], s.hill[-1, 0], "o", color=canvas.color(j))
-    ax.set_xlabel("y (along-track) [m]")
-    ax.set_ylabel("x (radial) [m]")
-    ax.set_title(canvas.title("hill_xy.png"))
-    ax.grid(True, alpha=0.3)
-    legend(ax)
-    canvas.save(fig, "hill_xy.png")
+def plot_curves(
+    canvas: Canvas,
+    ax: Axes,
+    curve: Curve,
+    since: float = -np.inf,
+    steps: bool = False,
+    unscaled: Collection[str] = (),
+) -> None:
+    """Each deputy's ``curve`` from time ``since`` (s) on, in orbits; ``steps``: drawn as a
+    zero-order hold; the deputies named in ``unscaled`` are drawn last, in the view the others
+    set (``fix_view``)."""
+    fixed = False
+    # the deputies that scale the view first (sorted is stable: in deputy order each)
+    for j, s in sorted(enumerate(canvas.series), key=lambda js: js[1].deputy.name in unscaled):
+        if s.deputy.name in unscaled and not fixed:
+            fix_view(ax)
+            fixed = True
+        t, y = curve(s)
+        keep = t >= since
+        if keep.any():
+            ax.plot(
+                t[keep] / canvas.period,
+                y[keep],
+                color=canvas.color(j),
+                lw=1.0,
+                label=s.label,
+                drawstyle="steps-post" if steps else "default",
+            )
 
 
-def _show_references(ax: Any, values: list[float]) -> None:
-    """Widen the y axis to the reference lines' ``values``, with a margin (axhline takes no
-    part in autoscaling: a reference just beside the learned gain would sit on the frame)."""
-    if not values:
-        return
-    lo, hi = ax.get_ylim()
-    lo, hi = min(lo, *values), max(hi, *values)
-    pad = 0.06 * (hi - lo) if hi > lo else 0.06 * abs(hi) or 1.0
-    ax.set_ylim(lo - pad, hi + pad)
+def fix_view(ax: Axes) -> None:
+    """Keep the axes' view where what they hold now puts it: what is drawn after does not move
+    it."""
+    ax.autoscale_view()
+    ax.set_autoscale_on(False)
 
 
-def gains_figure(canvas: Canvas) -> None:
-    """One panel per element of K (1, 4): every learning deputy's flown gain as steps, held to
-    the end of the run, its nominal LQR gain dashed and the optimal gain K* of the truth's
-    linear model dotted (the reference its gain error is scored against; the two lines are
-    one when the truth is nominal)."""
-    data = canvas.data
-    P = data.period
-    fig, axes = canvas.plt.subplots(
-        2,
-        2,
-        figsize=(10, 6.5),
-        sharex=True,
-        gridspec_kw={**MARGINS, "top": 0.89, "hspace": 0.25, "wspace": 0.32},
-    )
-    learners = [(j, s) for j, s in enumerate(canvas.series) if s.deputy.controller != "lqr"]
-    for c, ax in enumerate(axes.flat):
-        refs: list[float] = []
-        for j, s in learners:
-            color = canvas.color(j)
-            gains = data.craft.get(s.deputy.name, CraftData()).gains
-            if gains:
-                t = np.array([g.t for g in gains]) / P
-                k = np.array([np.ravel(g.K)[c] if np.size(g.K) > c else np.nan for g in gains])
-                if data.sim_t > gains[-1].t:  # hold the last gain to the end of the run
-                    t, k = np.append(t, data.sim_t / P), np.append(k, k[-1])
-                ax.step(t, k, where="post", color=color, lw=1.2, label=f"{s.label} K")
-            # the LQR gain wide and pale under K*, thin and dark on top: both stay visible
-            # where they coincide (a nominal truth)
-            if s.K_lqr.size > c:
-                refs.append(float(s.K_lqr.flat[c]))
-                ax.axhline(
-                    refs[-1],
-                    color=color,
-                    ls="--",
-                    lw=3.0,
-                    alpha=0.45,
-                    label=f"{s.deputy.name} nominal LQR",
-                )
-            if s.K_true is not None and s.K_true.size > c:
-                same = s.K_lqr.size > c and np.isclose(s.K_true.flat[c], s.K_lqr.flat[c])
-                label = f"{s.deputy.name} true K*" + (" (= LQR)" if same else "")
-                refs.append(float(s.K_true.flat[c]))
-                ax.axhline(refs[-1], color="black", ls=":", lw=1.4, zorder=3, label=label)
-        _show_references(ax, refs)
-        name = K_NAMES[c] if c < len(K_NAMES) else str(c)
-        unit = f" [{K_UNITS[c]}]" if c < len(K_UNITS) else ""
-        ax.set_title(f"K[{name}]")
-        ax.set_ylabel(f"K[{name}]{unit}")
+def beyond_view(series: list[DeputySeries], since: float) -> dict[str, float]:
+    """The deputies farther than ``NEAR_SLOT_M`` from their slot at some time from ``since``
+    (s) on, with that largest distance (m, the larger of |y - y_ref| and |x|), when another
+    deputy is not: a view of the end game scales to the deputies near their slots.  Empty when
+    every deputy is near, or none is."""
+    far: dict[str, float] = {}
+    near = 0
+    for s in series:
+        keep = s.t >= since
+        if not keep.any():
+            continue
+        along, radial = np.abs(s.hill[keep, 1] - s.deputy.y_ref), np.abs(s.hill[keep, 0])
+        distance = float(np.maximum(along, radial).max())
+        if distance > NEAR_SLOT_M:
+            far[s.deputy.name] = distance
+        else:
+            near += 1
+    return far if near else {}
+
+
+def note_beyond(ax: Axes, far: dict[str, float]) -> None:
+    """Name the deputies ``beyond_view`` left out of the view's scale, in the view."""
+    if far:
+        said = ", ".join(f"{name} ({d / 1000:.3g} km from its slot)" for name, d in far.items())
+        ax.text(0.01, 0.02, f"beyond this view: {said}", transform=ax.transAxes, fontsize="small")
+
+
+def hill_y_figure(canvas: Canvas) -> Figure:
+    """The along-track position over the run with each deputy's slot dotted (upper panel),
+    and over its last ``ENDGAME_SHARE`` its distance from the slot, y - y_ref (lower)."""
+    fig = canvas.figure("hill_y.png", (8, 7))
+    whole, end = fig.subplots(2, 1, gridspec_kw={"height_ratios": (3, 2), "hspace": 0.45})
+    plot_curves(canvas, whole, lambda s: (s.t, s.hill[:, 1]))
+    for y_ref, who in distinct_slots(canvas.series):
+        whole.axhline(y_ref, color="black", ls=":", lw=0.9, label=f"slot{who}")
+    P, t_end = canvas.period, canvas.data.sim_t
+    since = t_end - max(ENDGAME_SHARE * t_end, P)
+    far = beyond_view(canvas.series, since)
+    error = lambda s: (s.t, s.hill[:, 1] - s.deputy.y_ref)  # noqa: E731
+    plot_curves(canvas, end, error, since=since, unscaled=far)
+    note_beyond(end, far)
+    end.axhline(0.0, color="black", ls=":", lw=0.9)
+    if t_end > 0:
+        whole.axvspan(since / P, t_end / P, color="0.9", zorder=0, label="end game (below)")
+    whole.set_title("whole run", fontsize="medium")
+    time_axes(whole, "y [m]")
+    end.set_title(f"end game: the last {(t_end - since) / P:.3g} orbits", fontsize="medium")
+    time_axes(end, "y - y_ref [m]")
+    legend(whole)
+    return fig
+
+
+def distinct_slots(series: list[DeputySeries]) -> list[tuple[float, str]]:
+    """Each slot y_ref once, with the deputies at it named when the deputies have more than
+    one slot (" of lqr, ddvi"; "" when they share one)."""
+    slots: dict[float, list[str]] = {}
+    for s in series:
+        slots.setdefault(s.deputy.y_ref, []).append(s.deputy.name)
+    if len(slots) == 1:
+        return [(y, "") for y in slots]
+    return [(y, f" of {', '.join(names)}") for y, names in slots.items()]
+
+
+def hill_xy_figure(canvas: Canvas) -> Figure:
+    """Radial against along-track position over the run (left) and over its last orbit
+    (right), with the chief at the origin, each slot, and each deputy's last position."""
+    fig = canvas.figure("hill_xy.png", (12, 5.5))
+    whole, last = fig.subplots(1, 2, gridspec_kw={"width_ratios": (3, 2), "wspace": 0.22})
+    since = canvas.data.sim_t - canvas.period
+    far = beyond_view(canvas.series, since)
+    note_beyond(last, far)
+    names = [s.deputy.name for s in canvas.series]
+    for ax, start, unscaled in ((whole, -np.inf, {}), (last, since, far)):
+        plot_trajectories(canvas, ax, start, [n for n in names if n not in unscaled])
+        for y_ref, who in distinct_slots(canvas.series):
+            ax.plot(y_ref, 0.0, "s", mfc="none", mec="black", ms=9, ls="none", label=f"slot{who}")
+        if ax is last:
+            # the chief and the deputies far from their slots do not widen the last orbit's
+            # view: they show there only if they are near
+            fix_view(ax)
+        plot_trajectories(canvas, ax, start, unscaled)
+        ax.plot(0.0, 0.0, "*", color="black", ms=11, ls="none", label="chief")
+        ax.set_xlabel("y (along-track) [m]")
+        ax.set_ylabel("x (radial) [m]")
         ax.grid(True, alpha=0.3)
-        if c >= 2:
-            ax.set_xlabel("time [orbits]")
-    if learners:
-        legend(axes.flat[0])
-    else:
-        axes.flat[0].text(
-            0.5, 0.5, "no learning deputy", ha="center", transform=axes.flat[0].transAxes
-        )
-    fig.suptitle(canvas.title("gains.png"))
-    canvas.save(fig, "gains.png")
+    whole.set_title("whole run", fontsize="medium")
+    last.set_title("last orbit", fontsize="medium")
+    legend(whole)
+    return fig
 
 
-def commanded_sigma3(data: RunData) -> Curve:
-    """A deputy's commanded sigma3 by the time it is for."""
+def plot_trajectories(canvas: Canvas, ax: Axes, since: float, deputies: Collection[str]) -> None:
+    """The Hill x-y trajectory from ``since`` (s) on of each deputy named in ``deputies``,
+    with a dot at its last position."""
+    for j, s in enumerate(canvas.series):
+        keep = s.t >= since
+        if keep.any() and s.deputy.name in deputies:
+            y, x = s.hill[keep, 1], s.hill[keep, 0]
+            ax.plot(y, x, color=canvas.color(j), lw=1.0, label=s.label)
+            ax.plot(y[-1], x[-1], "o", color=canvas.color(j), ms=5)
 
-    def curve(s: DeputySeries) -> tuple[FloatArray, FloatArray]:
+
+def exploring_spans(gains: list[GainRecord], end: float) -> list[tuple[float, float]]:
+    """The times (s) a controller explored, each (from, to): while it flew K0, the gains of
+    the exploring phases (source "initial": services.flight.phases.SOURCES), which it sends
+    every step it explores; a span still open at the last record ends at ``end``."""
+    spans: list[tuple[float, float]] = []
+    start: float | None = None
+    for r in gains:
+        exploring = r.source == EXPLORING_SOURCE
+        if exploring and start is None:
+            start = r.t
+        elif not exploring and start is not None:
+            spans.append((start, r.t))
+            start = None
+    if start is not None:
+        spans.append((start, max(end, start)))
+    return spans
+
+
+def sigma3_figure(canvas: Canvas) -> Figure:
+    """Each deputy's commanded sigma3 as flown (a zero-order hold), the times each learner
+    explored shaded, each switch to learned gains a vertical line, and the attitude limits."""
+    data, P = canvas.data, canvas.period
+    fig = canvas.figure("sigma3.png", (10, 4.8), Margins(right=2.1))  # the legend at the right
+    ax = fig.add_subplot()
+
+    def commanded(s: DeputySeries) -> tuple[FloatArray, FloatArray]:
         t, v = data.craft.get(s.deputy.name, CraftData()).cmd.arrays()
         return t, v[:, 2]
 
-    return curve
+    plot_curves(canvas, ax, commanded, steps=True)
+    for j, s in enumerate(canvas.series):
+        craft = data.craft.get(s.deputy.name, CraftData())
+        color, name = canvas.color(j), s.deputy.name
+        for k, (t0, t1) in enumerate(exploring_spans(craft.gains, data.sim_t)):
+            label = f"{name} exploring" if k == 0 else None
+            ax.axvspan(t0 / P, t1 / P, color=color, alpha=0.12, lw=0, label=label)
+        for k, t in enumerate(learned_switches(craft.gains)):
+            label = f"{name} learned" if k == 0 else None
+            ax.axvline(t / P, color=color, ls="--", lw=1.2, label=label)
+    limits = sorted({s.deputy.attitude_limit for s in canvas.series})
+    for limit in limits:
+        label = "attitude limit" if len(limits) == 1 else f"attitude limit {limit:g}"
+        ax.axhline(limit, color="black", ls=":", lw=1.0, label=label)
+        ax.axhline(-limit, color="black", ls=":", lw=1.0)
+    time_axes(ax, "commanded sigma3 [-]")
+    legend(ax, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    return fig
 
 
 def along_track_error(s: DeputySeries) -> tuple[FloatArray, FloatArray]:
-    """|y - y_ref|, at least 1 um (a log scale shows no zero)."""
-    return s.t, np.maximum(np.abs(s.hill[:, 1] - s.deputy.y_ref), 1e-6)
+    """|y - y_ref|, at least ``ERROR_FLOOR`` m (a log scale shows no zero)."""
+    return s.t, np.maximum(np.abs(s.hill[:, 1] - s.deputy.y_ref), ERROR_FLOOR)
+
+
+def draw_figures(data: RunData, series: list[DeputySeries]) -> dict[str, Figure]:
+    """Every figure of ``FIGURES``, drawn: file name -> matplotlib Figure."""
+    import matplotlib
+
+    canvas = Canvas(data, series, matplotlib.rcParams["axes.prop_cycle"].by_key()["color"])
+    return {
+        "hill_x.png": line_figure(canvas, "hill_x.png", "x [m]", lambda s: (s.t, s.hill[:, 0])),
+        "hill_y.png": hill_y_figure(canvas),
+        "hill_xdot.png": line_figure(
+            canvas, "hill_xdot.png", "xdot [m/s]", lambda s: (s.t, s.hill[:, 3])
+        ),
+        "hill_ydot.png": line_figure(
+            canvas, "hill_ydot.png", "ydot [m/s]", lambda s: (s.t, s.hill[:, 4])
+        ),
+        "sigma3.png": sigma3_figure(canvas),
+        "along_track_error.png": line_figure(
+            canvas, "along_track_error.png", "|y - y_ref| [m]", along_track_error, log_y=True
+        ),
+        "hill_xy.png": hill_xy_figure(canvas),
+        "gains.png": gains_figure(canvas),
+    }
 
 
 def write_figures(
     out: Path, data: RunData, series: list[DeputySeries], save: Save | None = None
 ) -> list[str]:
     """Write the PNG figures, each with ``save`` (default: a file in ``out``); return the file
-    names of those written."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    names of those written.  Each is drawn whole first: on a full disk no part of a figure is
+    left."""
 
     def to_file(name: str, png: bytes) -> bool:
         (out / name).write_bytes(png)
         return True
 
-    canvas = Canvas(out, data, series, plt, save or to_file)
-    line_figure(canvas, "hill_x.png", "x [m]", lambda s: (s.t, s.hill[:, 0]))
-    line_figure(canvas, "hill_y.png", "y [m]", lambda s: (s.t, s.hill[:, 1]), refs=True)
-    line_figure(canvas, "hill_xdot.png", "xdot [m/s]", lambda s: (s.t, s.hill[:, 3]))
-    line_figure(canvas, "hill_ydot.png", "ydot [m/s]", lambda s: (s.t, s.hill[:, 4]))
-    sigma3 = commanded_sigma3(data)
-    line_figure(canvas, "sigma3.png", "commanded sigma3 [-]", sigma3, steps=True)
-    line_figure(canvas, "along_track_error.png", "|y - y_ref| [m]", along_track_error, log_y=True)
-    hill_xy_figure(canvas)
-    gains_figure(canvas)
-    return canvas.written
+    write = save or to_file
+    written = []
+    for name, fig in draw_figures(data, series).items():
+        png = io.BytesIO()
+        fig.savefig(png, format="png")
+        if write(name, png.getvalue()):
+            written.append(name)
+    return written

@@ -35,6 +35,7 @@ from mcap.writer import CompressionType, Writer
 
 from services.config import Deployment, DeploymentError, deployment_from_table, load_deployment
 from services.ground.analysis.report import ReportNotWrittenError
+from services.ground.analysis.rundata import RunData
 from services.ground.storage.disk import failure
 from services.ground.storage.recording import CHUNK_SIZE, RECORDING
 
@@ -160,12 +161,29 @@ def recover(folder: Path) -> Recovered:
         else:
             os.replace(path, folder / TRUNCATED)
             os.replace(folder / REPAIRED, path)
+    dep, run = recorded_run(records, path)
+    summary = replay(folder, dep, run, records)
+    return Recovered(len(records.messages), complete, summary, unrepaired)
+
+
+def recorded_run(records: Records, path: Path) -> tuple[Deployment, str]:
+    """The deployment and the run's name the recording at ``path`` holds; ValueError when it
+    names no run."""
     meta = next((dict(m.metadata) for m in records.metadata if m.name == "ddvi"), {})
     if "run" not in meta:
         raise ValueError(f"{path}: no ddvi metadata (not a ddvi recording?)")
-    dep = _deployment(records, meta)
-    summary = replay(folder, dep, meta["run"], records)
-    return Recovered(len(records.messages), complete, summary, unrepaired)
+    return _deployment(records, meta), meta["run"]
+
+
+def run_data(folder: Path) -> RunData:
+    """What the monitor learned of the run in ``folder``, again from its recording (read up to
+    any damage, nothing written): the report's data, for its figures."""
+    from services.ground.analysis.replay import replayed
+
+    path = folder / RECORDING
+    records = stream_records(path)
+    dep, run = recorded_run(records, path)
+    return replayed(dep, run, records)[0]
 
 
 def _folder(run: str) -> Path | None:

@@ -77,6 +77,21 @@ def _message(topic: str, data: dict[str, Any], counters: dict[str, int]) -> Any:
 def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, Any]:
     """Write the report of ``records`` (``services.ground.analysis.recover.Records``) to ``folder``;
     return its summary."""
+    data, counters = replayed(dep, run, records)
+    n, complete = len(records.messages), records.complete
+    return write_report(
+        folder,
+        data,
+        completed=data.final_seen,
+        monitor_counters=counters,
+        gaps=RecordGaps(cut_short=not complete),
+        source=f"the {n} messages read from the recording",
+        recovered={"messages": n, "complete": complete},
+    )
+
+
+def replayed(dep: Deployment, run: str, records: Any) -> tuple[RunData, dict[str, int]]:
+    """What the monitor would have learned from ``records``, and its counters."""
     data = RunData(dep, run, _dropped(records))
     guards = SequenceGuards()
     counters = _counters()
@@ -115,16 +130,7 @@ def replay(folder: Path, dep: Deployment, run: str, records: Any) -> dict[str, A
         except Exception:  # one odd message must not lose the report
             counters["handler_errors"] += 1
             log.exception("could not use %s at t = %s", channel.topic, msg.t)
-    n, complete = len(records.messages), records.complete
-    return write_report(
-        folder,
-        data,
-        completed=data.final_seen,
-        monitor_counters=counters,
-        gaps=RecordGaps(cut_short=not complete),
-        source=f"the {n} messages read from the recording",
-        recovered={"messages": n, "complete": complete},
-    )
+    return data, counters
 
 
 def _dropped(records: Any) -> Callable[[str], int]:

@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from services.ground.analysis.figures import FIGURES, write_figures
+from services.ground.analysis.figure_canvas import FIGURES
+from services.ground.analysis.figures import write_figures
 from services.ground.analysis.outcome import outcome, outcome_lines
 from services.ground.analysis.rundata import (
     CraftData,
@@ -44,10 +45,10 @@ from services.ground.analysis.rundata import (
     RunData,
 )
 from services.ground.analysis.scoring import (
-    NOT_LEARNED,
     DeputyOutcome,
     deputy_metrics,
     holding_notes,
+    learned_switches,
     reference_gains,
     table_cell,
 )
@@ -85,15 +86,6 @@ def _switches(gains: list[GainRecord], source: str, period: float) -> list[float
 REFERENCE = "the optimal gain K* of the truth's linear model (its density, facet area and factors)"
 
 
-def _learned_switches(gains: list[GainRecord]) -> list[float]:
-    """When (s) the gains switched to learned ones from others, in order."""
-    return [
-        r.t
-        for k, r in enumerate(gains)
-        if r.source not in NOT_LEARNED and (k == 0 or gains[k - 1].source != r.source)
-    ]
-
-
 def _deputy_summary(
     data: RunData, s: DeputySeries, completed: bool, cannot_hold: str
 ) -> dict[str, Any]:
@@ -107,7 +99,7 @@ def _deputy_summary(
         source=None if last_gains is None else last_gains.source,
         # every switch to learned gains: the first learning, then each re-learning (or, for a
         # restarted controller, its learning from scratch)
-        learned_at=_learned_switches(craft.gains),
+        learned_at=learned_switches(craft.gains),
         log=[text] if (text := data.last_log.get(log_topic(f"ctrl-{d.name}"))) else [],
         completed=completed,
     )
@@ -117,7 +109,7 @@ def _deputy_summary(
     out: dict[str, Any] = {
         "controller": d.controller,
         # a learner's learning.method (None for LQR)
-        "learning_method": None if d.controller == "lqr" else getattr(d.learning, "method", None),
+        "learning_method": getattr(d.learning, "method", None) if d.controller == "ddvi" else None,
         "y_ref": d.y_ref,
         "samples": len(s.t),
         "final_along_track_error_m": m["final_along_track_error_m"],
@@ -147,8 +139,8 @@ def _deputy_summary(
         out.update(max_radial_last_orbit_m=float(ax[last].max()), final_radial_m=float(ax[-1]))
     if last_gains is not None:
         out["gains"] = {"K": last_gains.K, "L": last_gains.L, "source": last_gains.source}
-        if d.controller != "lqr":
-            switches = _learned_switches(craft.gains)[1:]
+        if d.controller == "ddvi":
+            switches = learned_switches(craft.gains)[1:]
             out["relearned_at_orbits"] = [t / data.period for t in switches]
             # every return to the old gains after re-learning failed (LearningCycle.learning_failed)
             out["relearning_abandoned_at_orbits"] = _switches(craft.gains, "fallback", data.period)
@@ -304,7 +296,7 @@ def markdown(summary: dict[str, Any], figures: list[str]) -> str:
         "## Figures",
         "",
     ]
-    lines += [f"- [{FIGURES.get(f, f)}]({f})" for f in figures]
+    lines += [f"- [{FIGURES[f].line if f in FIGURES else f}]({f})" for f in figures]
     data = [f"`{f}`" for f in ("timeseries.csv",) if f not in summary.get("not_written", {})]
     data += ["`summary.json`", "recording `recording.mcap`"]
     lines += ["", f"Data: {', '.join(data)}.", ""]
@@ -374,6 +366,18 @@ class ReportFiles:
             raise ReportNotWrittenError(failure(path, exc)) from exc
 
 
+def deputy_series(data: RunData) -> list[DeputySeries]:
+    """Each deputy's true Hill states with its nominal LQR gains and the optimal gains of the
+    truth's linear model: what the report scores and plots."""
+    series = []
+    for d in data.dep.deputy:
+        t, hill = data.hill(d.name)
+        K, L = lqr_gains(data.dep, d)
+        K_true, L_true = reference_gains(data.dep, d)
+        series.append(DeputySeries(d, t, hill, np.asarray(K), np.asarray(L), K_true, L_true))
+    return series
+
+
 def write_report(
     out: Path,
     data: RunData,
@@ -392,12 +396,7 @@ def write_report(
     named in both.  Figures that fail are logged and left out.  Raises ReportNotWrittenError when
     report.md or summary.json cannot be written."""
     out.mkdir(parents=True, exist_ok=True)
-    series = []
-    for d in data.dep.deputy:
-        t, hill = data.hill(d.name)
-        K, L = lqr_gains(data.dep, d)
-        K_true, L_true = reference_gains(data.dep, d)
-        series.append(DeputySeries(d, t, hill, np.asarray(K), np.asarray(L), K_true, L_true))
+    series = deputy_series(data)
     files = ReportFiles(out)
     table, rows = timeseries_csv(data, series)
     files.extra("timeseries.csv", table)

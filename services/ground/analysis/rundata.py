@@ -289,4 +289,7 @@ class DeputySeries:
 
     @property
     def label(self) -> str:
-        return f"{self.deputy.name} ({self.deputy.controller})"
+        """The deputy as a legend names it: its name, and its controller when the name does not
+        say it (``lqr``, ``ddvi``, ``fit (ddvi model-fit)``)."""
+        d = self.deputy
+        return d.name if d.name == d.controller else f"{d.name} ({d.label})"

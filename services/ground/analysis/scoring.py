@@ -27,8 +27,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.config import Deployment, Deputy
-from services.ground.analysis.rundata import truth_hill
-from services.model import holding_problems, lqr_gains, orbit_period, true_lqr_gains
+from services.ground.analysis.rundata import GainRecord, truth_hill
+from services.model import holding_problems, lqr_gains, orbit_period, reference_gains
 
 log = logging.getLogger("ddvi.scoring")
 
@@ -37,6 +37,17 @@ FloatArray = NDArray[np.float64]
 NOT_LEARNED = ("lqr", "initial", "fallback")
 """Gain sources that are not learned: the nominal LQR gain, K0 while exploring, the old gains
 a failed re-learning fell back to.  Any other source is a learner's."""
+
+
+def learned_switches(gains: Sequence[GainRecord]) -> list[float]:
+    """When (s) a controller's gains switched to learned ones from others, in order: its first
+    learning, then each re-learning."""
+    return [
+        r.t
+        for k, r in enumerate(gains)
+        if r.source not in NOT_LEARNED and (k == 0 or gains[k - 1].source != r.source)
+    ]
+
 
 NOT_LEARNED_TEXT = "not learned"
 """What a table prints for the gain error of a learner that flies no learned gain."""
@@ -157,17 +168,6 @@ def scored_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
     return relative_gain_error(K, K_ref)
 
 
-def reference_gains(dep: Deployment, deputy: Deputy) -> tuple[FloatArray | None, FloatArray | None]:
-    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run, or (None,
-    None) when it has none (no drag in the truth, or no stabilising solution)."""
-    try:
-        K, L = true_lqr_gains(dep, deputy)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
-        return None, None
-    return np.asarray(K), np.asarray(L)
-
-
 def holding_notes(dep: Deployment) -> dict[str, str]:
     """Deputy name -> why it cannot hold its slot (its warnings joined); deputies that can
     are absent."""
@@ -197,6 +197,7 @@ def deputy_metrics(
     ``K_lqr`` and ``cannot_hold`` (why it cannot hold its slot; "" when it can) are computed
     from ``dep`` when not given."""
     lqr = deputy.controller == "lqr"
+    learner = deputy.controller == "ddvi"  # a ROS 2-flown deputy's gains are its node's own
     period = orbit_period(dep)
     learned = outcome.source is not None and outcome.source not in NOT_LEARNED
     scored = lqr or learned
@@ -209,7 +210,7 @@ def deputy_metrics(
     ey = np.asarray(outcome.along_track_error, float)
     t = np.asarray(outcome.t, float)
     notes = [cannot_hold] if cannot_hold else []
-    if not scored:
+    if learner and not scored:
         notes.append(short_note(outcome.log[-1]) if outcome.log else "no learning attempt")
     return {
         "completed": bool(outcome.completed),
@@ -217,9 +218,9 @@ def deputy_metrics(
         "max_along_track_error_last_orbit_m": float(ey[t >= t[-1] - period].max())
         if len(ey)
         else None,
-        "learned": None if lqr else learned,
+        "learned": learned if learner else None,
         "learned_at_orbits": None
-        if lqr or not outcome.learned_at
+        if not learner or not outcome.learned_at
         else float(outcome.learned_at[0] / period),
         "gain_error": scored_gain_error(outcome.K, K_true) if scored else None,
         "gain_error_vs_lqr": scored_gain_error(outcome.K, K_lqr) if learned else None,

@@ -18,6 +18,7 @@ report (``services.ground.campaign.report``) is written beside it.  docs/campaig
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import os
 import signal
@@ -44,16 +45,22 @@ from services.model import holding_warnings
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
+def shipped_campaigns() -> list[str]:
+    """The names of the shipped campaign files (deployments/campaigns/), each found by name."""
+    return sorted({p.stem for d in deployment_dirs() for p in (d / "campaigns").glob("*.toml")})
+
+
 def load_campaign(path: str) -> CampaignSpec:
     """A checked campaign file; CampaignError (one line naming the key) if it cannot run.  Its
     deployment is a name, a path from the working directory or one from the file's folder."""
     file = campaign_file(path)
     if file is None:
-        shipped = sorted(
-            p.stem for d in deployment_dirs() for p in (d / "campaigns").glob("*.toml")
-        )
+        shipped = shipped_campaigns()
+        near = difflib.get_close_matches(Path(path).name.removesuffix(".toml"), shipped, n=1)
+        hint = f" (did you mean '{near[0]}'?)" if near else ""
         raise CampaignError(
-            f"{path}: no such campaign file or name; shipped: " + (", ".join(shipped) or "none")
+            f"{path}: no such campaign file or name{hint}; shipped: "
+            + (", ".join(shipped) or "none")
         )
     try:
         table = tomllib.loads(file.read_text())
@@ -254,7 +261,11 @@ def only_run(spec: CampaignSpec, folder: Path, index: int, mode: str) -> int:
 
 def add_campaign_arguments(p: argparse.ArgumentParser) -> None:
     """The arguments of ``ddvi campaign``, for ``services.cli``."""
-    p.add_argument("file", help="campaign file (TOML; docs/campaigns.md)")
+    p.add_argument(
+        "file",
+        help="a campaign file (TOML; docs/campaigns.md), or a shipped campaign's name: "
+        + ", ".join(shipped_campaigns()),
+    )
     p.add_argument(
         "--output",
         help="folder of results.sqlite and the report "

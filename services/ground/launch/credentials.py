@@ -68,7 +68,9 @@ def hub_settings(
         user=router.user,
         password=router.password,
         dictionary=str(out / SECURITY_DIR / DICTIONARY),
-        access_control=access_control(run, users),
+        access_control=access_control(
+            run, users, [d.name for d in dep.deputy if d.controller == "ros2"]
+        ),
         tls=router_tls,
     )
 

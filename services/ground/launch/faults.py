@@ -29,12 +29,14 @@ Before it sends anything the command checks the fault as the run's deployment wo
 same fault, link or kill in its file (``services.config.validation``: a link's delay + jitter
 shorter than the mission, patterns naming its services, a deputy of the run, values in range),
 against the copy in the run folder (``deployment.toml``); a run reached by ``--hub`` alone is
-checked by its services on receipt, with the same checks.
+checked by its services on receipt, with the same checks, but for the deputy a panel, bias or
+outage fault names, which must be one whose services are alive on the run's bus.  A run whose
+folder holds its report (summary.json, written as it ends) is over: said at once, exit 1.
 
 The service that acts logs ``fault <kind> <target>: ...``; the command waits for that line,
-prints it, and exits 0, or 1 when the run, the service or that answer is not there, or the
-service refused the fault; 2, with nothing sent, for a command line that does not describe a
-fault or a run, or a fault the run's deployment refuses.
+prints it, and exits 0, or 1 when the run, the service or that answer is not there (or the run
+is over), or the service refused the fault; 2, with nothing sent, for a command line that does
+not describe a fault or a run, or a fault the run's deployment (or its deputies) refuses.
 """
 
 from __future__ import annotations
@@ -53,12 +55,12 @@ from services.bus import (
     LINK_PARAMETERS,
     Bus,
     BusSettings,
+    alive_services,
     check_name,
     error_text,
     open_session,
     queue_handler,
     wait_for_alive,
-    watch_alive,
 )
 from services.bus.security import OPERATOR
 from services.config import (
@@ -75,6 +77,7 @@ from services.config import (
 from services.config.ranges import check_bias
 from services.ground.launch.runfolder import DEPLOYMENT_FILE
 from services.interface import decode, topics
+from services.interface.keys import key_matches
 
 if TYPE_CHECKING:
     from services.config.deployment import Link
@@ -297,13 +300,45 @@ def check_against(dep: Deployment, args: argparse.Namespace, target: str) -> Non
 def _link_answerers(session: zenoh.Session, run: str, target: str) -> set[str]:
     """The running services a link fault for ``target`` (a subscriber pattern) reaches, each of
     which answers: those alive that match it, but the monitor (it records unimpaired)."""
-    found: set[str] = set()
-    sub = watch_alive(session, run, target, lambda name, alive: alive and found.add(name))
+    alive = alive_services(session, run)
+    return {n for n in alive if key_matches(target, n) and n not in ("monitor", "launcher")}
+
+
+def run_deputies(alive: set[str]) -> list[str]:
+    """The deputies whose navigation or controller is among the ``alive`` services."""
+    return sorted({name.split("-", 1)[1] for name in alive if name.startswith(("nav-", "ctrl-"))})
+
+
+def unknown_deputy(session: zenoh.Session, run: str, args: argparse.Namespace) -> str | None:
+    """Why a panel, bias or outage fault names no deputy of the run reached by ``--hub`` alone
+    (no deployment here to check it against), from the services alive on its bus: one line, or
+    None (a deputy of the run, another kind, or no deputy's service alive to tell)."""
+    if args.kind not in ("panel", "bias", "outage"):
+        return None
+    deputies = run_deputies(alive_services(session, run))
+    if not deputies or args.target in deputies:
+        return None
+    return (
+        f"ddvi fault {args.kind}: {args.target!r} is not a deputy of run {run!r}; its "
+        f"deputies: {', '.join(deputies)}"
+    )
+
+
+def finished(run: str, output: str) -> str | None:
+    """One line saying the run is over, when its folder holds the report its monitor writes
+    as the run ends (summary.json), or None: a fault goes only to a run that flies."""
+    from services.ground.launch.credentials import RunNotFoundError, run_folder
+
     try:
-        time.sleep(0.3)  # the tokens there now arrive as history, at once
-    finally:
-        sub.undeclare()
-    return {name for name in found if name not in ("monitor", "launcher")}
+        folder = run_folder(run, output)
+    except RunNotFoundError:
+        return None
+    if not (folder / "summary.json").is_file():
+        return None
+    return (
+        f"ddvi fault: run {folder.name!r} is over (its report: {folder / 'report.md'}); a fault "
+        "goes to a run while it flies"
+    )
 
 
 def _publish_and_wait(
@@ -373,17 +408,24 @@ def fault_command(args: argparse.Namespace) -> int:
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2
+    if (over := finished(args.run, args.output)) is not None:
+        print(over, file=sys.stderr)
+        return 1
     with contextlib.ExitStack() as stack:
         if (session := _connect(stack, bus)) is None:
             return 1
         t = _clock(session, run, args.timeout)
         if t is None:
-            print(
+            # the run may have ended while the command waited
+            said = finished(args.run, args.output) or (
                 f"ddvi fault: no clock from run {run!r} on {bus.hub} within {args.timeout:g} s; "
-                "is it running? (ddvi run prints 'run <name>, output <dir>, hub <endpoint>')",
-                file=sys.stderr,
+                "is it running? (ddvi run prints 'run <name>, output <dir>, hub <endpoint>')"
             )
+            print(said, file=sys.stderr)
             return 1
+        if dep is None and (why := unknown_deputy(session, run, args)) is not None:
+            print(why, file=sys.stderr)
+            return 2
         if acting is not None and not wait_for_alive(session, run, [acting], 2.0):
             print(f"ddvi fault: service {acting!r} is not alive in run {run!r}", file=sys.stderr)
             return 1

@@ -31,6 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import tomli_w
 import zenoh
 
 from services.bus import Bus, BusSettings, error_text, open_session, queue_handler
@@ -43,7 +44,7 @@ from services.ground.launch.processes import ServiceProcesses
 from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.launch.supervisor import Supervisor
 from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
-from services.interface.topics import fault_topic, log_topic
+from services.interface.topics import ROS2_GATEWAY, fault_topic, log_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
@@ -94,9 +95,14 @@ class Launcher:
         quiet: bool = False,
         folder_mode: int | None = None,
         viewing: Viewing | None = None,
+        table: dict[str, Any] | None = None,
     ) -> None:
         self.dep = dep
         self.viewing = view = viewing or Viewing()
+        # the deployment's table when a command-line option changed it from its file's
+        # (--ros2): the run folder keeps it as the deployment the run flies, and the services
+        # read it there
+        self.table = table
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -164,7 +170,12 @@ class Launcher:
             made = True
             (self.out / "logs").mkdir()
             self._hub_settings()  # bus.json and the credentials, each a new file
-            if self.dep.path:  # what `ddvi fault` checks a fault against
+            if self.table is not None:
+                text = tomli_w.dumps(self.table)
+                write_private(self.out / DEPLOYMENT_FILE, text, mode=0o644)
+                self.dep = dataclasses.replace(self.dep, path=str(self.out / DEPLOYMENT_FILE))
+                self.services.dep = self.supervisor.dep = self.dep
+            elif self.dep.path:  # what `ddvi fault` checks a fault against
                 text = Path(self.dep.path).read_text()
                 write_private(self.out / DEPLOYMENT_FILE, text, mode=0o644)
         except OSError as exc:
@@ -243,6 +254,11 @@ class Launcher:
         # all at once: a service declares itself alive, and publishes, only once it sees the
         # monitor (services.flight.runtime), so that the recording has everything from the
         # first message on, and the environment flies once it sees every other service alive
+        if (ros2 := self.dep.ros2).enabled:
+            self.say(
+                f"ROS 2 on {ros2.endpoint}, domain {ros2.domain_id}: {ROS2_GATEWAY} joins the "
+                "Zenoh router there, or serves it (docs/ros2.md)"
+            )
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")

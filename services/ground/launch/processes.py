@@ -23,6 +23,7 @@ MODULES = {
     "monitor": "services.ground.monitoring.monitor",
     "nav": "services.flight.navigation",
     "ctrl": "services.flight.controller",
+    "ros2": "services.ros2.gateway.service",
 }
 
 

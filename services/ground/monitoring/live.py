@@ -10,7 +10,7 @@ protocol's ``time`` capability, which Foxglove stamps received messages with) is
 mission's simulation time, moved by the time master's clock messages.  Beside the bus
 topics it serves ``live/<sc>/gains`` (``live_gains_topic``), sent with each of a deputy's
 gains messages: the gains it flies and the optimal gains K*, L* of the truth's model
-(``services.ground.analysis.scoring.reference_gains``), each flattened, which Foxglove's message
+(``services.model.reference_gains``), each flattened, which Foxglove's message
 paths index (they index one array level, and K is a matrix).
 
 It also serves the formation as a 3D scene in Foxglove's schemas (``scene``: the scene
@@ -104,7 +104,7 @@ def _bus_schema(name: str) -> dict[str, Any]:
 
 def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]]]:
     """Deputy -> (K*, L*) flattened, empty for a deputy whose truth has no optimal gains."""
-    from services.ground.analysis.scoring import reference_gains as optimal
+    from services.model import reference_gains as optimal
 
     out: dict[str, tuple[list[float], list[float]]] = {}
     for d in dep.deputy:

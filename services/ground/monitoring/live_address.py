@@ -86,14 +86,18 @@ def check_live(text: str) -> LiveAddress:
     return address
 
 
+def loopback(host: str) -> bool:
+    """Whether ``host`` (an address or ``localhost``) is this machine's loopback only."""
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
 def exposure_warning(address: LiveAddress) -> str | None:
     """A warning when the live view listens beyond this machine (it has no authentication)."""
-    try:
-        if ipaddress.ip_address(address.host).is_loopback:
-            return None
-    except ValueError:
-        if address.host == "localhost":
-            return None
+    if loopback(address.host):
+        return None
     return (
         f"the live view on {address} serves every message of the run, unauthenticated, to "
         "anyone who can reach it"

@@ -36,6 +36,7 @@ import copy
 import datetime
 import json
 import sys
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -227,7 +228,7 @@ def unlearned_points(
         dep = deployment_from_table(table)
         for d in dep.deputy:
             at = d.learning.learn_at_orbits
-            if d.controller != "lqr" and at >= dep.run.orbits:
+            if d.controller == "ddvi" and at >= dep.run.orbits:
                 out.append(
                     (
                         point,
@@ -348,44 +349,107 @@ def sweep(
     return folder, rows
 
 
+WRITES = (
+    "Writes sweep.csv (a row per run and deputy), sweep.md (the same table) and sweep.png in "
+    "<output>/sweep-{kind}-<run name>-<stamp>/, with the derived deployments and each launched "
+    "run's folder, and prints the table; every gain error is against K*, the optimal gain of "
+    "that run's truth."
+)
+
+SWEEPS: dict[str, tuple[str, str, str]] = {
+    "delay": (
+        "the mission over link delays",
+        "The mission once per delay: the navigation -> controller links (nav-* to ctrl-*) and "
+        "the controller -> environment links (cmd/*/att) each delayed by it, ahead of the "
+        "deployment's own [[link]]s.",
+        "delays, s (simulation time in lock-step)",
+    ),
+    "loss": (
+        "the mission over link loss rates",
+        "The mission once per loss rate: the navigation -> controller links (nav-* to ctrl-*) "
+        "and the controller -> environment links (cmd/*/att) each losing messages with that "
+        "probability, ahead of the deployment's own [[link]]s.",
+        "loss probabilities in [0, 1]",
+    ),
+    "noise": (
+        "the mission over navigation noise and model mismatch",
+        "The mission once per navigation noise v and mismatch factor f: every deputy's "
+        "navigation.position_noise = v (m, 1 sigma per axis) and velocity_noise = "
+        f"{VELOCITY_NOISE_RATIO:g} (m/s)/m times it; the truth's density_factor and every "
+        "deputy's area_factor f times the deployment's (as deployments/mismatch-2x.toml does at "
+        "f = 2).",
+        "navigation position noise, m (1 sigma per axis; velocity noise "
+        f"{VELOCITY_NOISE_RATIO:g} (m/s)/m times it)",
+    ),
+}
+"""Each sweep kind: its line in ``ddvi sweep --help``, its own help's description, and what
+its --values are."""
+
+EXAMPLES = {
+    "delay": "ddvi sweep delay --values 0 60 120 180 300\n  ddvi sweep delay realistic-nav "
+    "--values 0 60 --in-process",
+    "loss": "ddvi sweep loss --values 0 0.1 0.2 0.3 0.5",
+    "noise": "ddvi sweep noise realistic-nav --values 0 0.1 1 10\n  ddvi sweep noise "
+    "--values 1 --mismatch 1 2 --orbits 40 30 --in-process",
+}
+
+
 def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
-    """The arguments of ``ddvi sweep``, for ``services.cli``."""
-    p.add_argument("kind", choices=list(UNITS), help="what to sweep")
-    p.add_argument("deployment", nargs="?", default=None, help="default: rendezvous")
-    p.add_argument(
-        "--values",
-        type=float,
-        nargs="+",
+    """The arguments of ``ddvi sweep``, for ``services.cli``: one parser per kind, each with
+    its own help (``ddvi sweep noise --help``)."""
+    p.description = (
+        "The mission over a range of link delays, loss rates, or navigation noise and model "
+        "mismatch, the deployment's deputies side by side."
+    )
+    kinds = p.add_subparsers(
+        dest="kind",
         required=True,
-        help="delays in s, loss probabilities in [0, 1], or navigation position "
-        f"noise in m (velocity noise {VELOCITY_NOISE_RATIO:g} (m/s)/m times it)",
+        metavar="KIND",
+        help="what to sweep (ddvi sweep KIND --help): "
+        + "; ".join(f"{kind}, {summary}" for kind, (summary, _, _) in SWEEPS.items()),
     )
-    p.add_argument(
-        "--mismatch",
-        type=float,
-        nargs="+",
-        default=None,
-        help="noise: factors on the truth's density and facet area (default 1)",
-    )
-    p.add_argument(
-        "--orbits",
-        type=float,
-        nargs="+",
-        help="override run.orbits; noise: one value, or one per --mismatch factor",
-    )
-    p.add_argument(
-        "--in-process",
-        action="store_true",
-        help="run each mission in this process (the services' components, their links "
-        "emulated as the buses would; lock-step only)",
-    )
-    p.add_argument(
-        "--filter",
-        dest="nav_filter",
-        default=None,
-        help="noise: set every deputy's navigation.filter",
-    )
-    p.add_argument("--output", help="parent folder (default: the deployment's run.output)")
+    for kind, (summary, description, values) in SWEEPS.items():
+        k = kinds.add_parser(
+            kind,
+            help=summary,
+            description=textwrap.fill(f"{description} {WRITES.format(kind=kind)}", 80),
+            epilog=f"examples:\n  {EXAMPLES[kind]}",
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        k.add_argument("deployment", nargs="?", default=None, help="default: rendezvous")
+        k.add_argument("--values", type=float, nargs="+", required=True, help=values)
+        if kind == "noise":
+            k.add_argument(
+                "--mismatch",
+                type=float,
+                nargs="+",
+                default=None,
+                help="factors on the truth's density and facet area (default 1)",
+            )
+            k.add_argument(
+                "--orbits",
+                type=float,
+                nargs="+",
+                help="override run.orbits: one value, or one per --mismatch factor (a denser "
+                "atmosphere brings the chief down sooner)",
+            )
+            k.add_argument(
+                "--filter",
+                dest="nav_filter",
+                choices=("kalman", "none"),
+                default=None,
+                help="set every deputy's navigation.filter",
+            )
+        else:
+            k.add_argument("--orbits", type=float, help="override run.orbits")
+            k.set_defaults(mismatch=None, nav_filter=None)
+        k.add_argument(
+            "--in-process",
+            action="store_true",
+            help="run each mission in this process (the services' components, their links "
+            "emulated as the buses would; lock-step only)",
+        )
+        k.add_argument("--output", help="parent folder (default: the deployment's run.output)")
 
 
 def sweep_command(args: argparse.Namespace) -> int:
