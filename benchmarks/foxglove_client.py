@@ -24,11 +24,13 @@ _MESSAGE_DATA, _TIME = 1, 2
 
 @dataclass(frozen=True)
 class Received:
-    """One message data frame: its channel's topic, its timestamp (ns) and payload."""
+    """One message data frame: its channel's topic, its timestamp (ns) and payload, and when
+    it came (``time.monotonic`` s)."""
 
     topic: str
     timestamp: int
     payload: bytes
+    at: float = 0.0
 
     def json(self) -> Any:
         return json.loads(self.payload)
@@ -53,6 +55,7 @@ class FoxgloveClient:
         self.messages: list[Received] = []
         self.counts: dict[str, int] = {}  # topic -> messages received
         self.times: list[int] = []  # the server's time frames, ns
+        self.subscribed: dict[str, float] = {}  # topic -> when it was subscribed (monotonic s)
         self.subprotocol: str | None = None
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
         self._ids = itertools.count(1)
@@ -114,6 +117,8 @@ class FoxgloveClient:
             wanted = [c for c in msg["channels"] if topics is None or c["topic"] in topics]
             subs = [{"id": next(self._ids), "channelId": c["id"]} for c in wanted]
             self._subscriptions.update({s["id"]: s["channelId"] for s in subs})
+            now = time.monotonic()
+            self.subscribed.update({c["topic"]: now for c in wanted})
             self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def _data(self, frame: bytes) -> None:
@@ -124,7 +129,7 @@ class FoxgloveClient:
             topic = self.channels[self._subscriptions[sub]]["topic"]
             self.counts[topic] = self.counts.get(topic, 0) + 1
             if self.keep:
-                self.messages.append(Received(topic, stamp, bytes(frame[13:])))
+                self.messages.append(Received(topic, stamp, bytes(frame[13:]), time.monotonic()))
 
     def advertised(self) -> dict[str, dict[str, Any]]:
         """Topic -> its channel's advertisement, so far."""

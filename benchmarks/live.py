@@ -2,12 +2,12 @@
 (``benchmarks.foxglove_client``, reading as Foxglove would) subscribed to every channel, and
 with one subscribed to the channels ``docs/foxglove-layout.json`` shows (what Foxglove with
 that layout subscribes to), against the same mission without ``--live``, alternated, two runs
-each (``--quick``: 4 orbits, one run each).  Whole-run wall time, the lock-step loop (the
-first to the last clock the monitor recorded, by receive wall time) and the CPU of the run's
-processes; the client's CPU and messages; whether the live runs' final errors are the others'
-(the live view must not touch the flight).
+each (``--rounds N``: N each; ``--quick``: 4 orbits, one run each).  Whole-run wall time,
+the lock-step loop (the first to the last clock the monitor recorded, by receive wall time)
+and the CPU of the run's processes; the client's CPU and messages; whether the live runs'
+final errors are the others' (the live view must not touch the flight).
 
-    python -m benchmarks.live [--quick] [--json]
+    python -m benchmarks.live [--quick] [--rounds N] [--json]
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from benchmarks.foxglove_client import FoxgloveClient
 from benchmarks.mission import _clock_span, _row, skipped_row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
+from services.ground.monitoring.scene import TRANSFORMS_TOPIC
 from services.ground.storage.recording import RECORDING
 
 TARGET = "≤ 1.10"
@@ -45,11 +46,15 @@ SHOWN = "the layout's channels"
 
 
 def layout_topics(path: Path = LAYOUT) -> set[str]:
-    """The topics a Foxglove layout's panels read (each message path's topic)."""
+    """The topics a Foxglove layout's panels read (each message path's topic, and each topic
+    a 3D panel shows, with the transforms it places them by)."""
     found: set[str] = set()
 
     def walk(node: Any) -> None:
         if isinstance(node, dict):
+            if "followTf" in node:  # a 3D panel: its topics, in the frames the transforms give
+                found.update(node.get("topics", {}))
+                found.add(TRANSFORMS_TOPIC)
             for key, value in node.items():
                 if key in ("value", "topicPath") and isinstance(value, str):
                     found.add(value.partition(".")[0])
@@ -127,9 +132,10 @@ def missing() -> str | None:
     return f"{' and '.join(absent)} {verb} not installed (pip install -e '.[test]')"
 
 
-def bench_live(quick: bool = False) -> list[dict[str, Any]]:
-    """The default mission with ``--live`` and one client against without, alternated; a
-    skipped row when its server or client is not installed."""
+def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str, Any]]:
+    """The default mission with ``--live`` and one client against without, alternated,
+    ``rounds`` times (default 2; ``quick``: 1); a skipped row when its server or client is
+    not installed."""
     if (why := missing()) is not None:
         return [skipped_row("live", why)]
     table = read_table(None)
@@ -138,7 +144,7 @@ def bench_live(quick: bool = False) -> list[dict[str, Any]]:
     runs: dict[str | None, list[dict[str, Any]]] = {None: [], EVERY: [], SHOWN: []}
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-live-") as tmp:
         path = write_deployment(table, Path(tmp), "mission")
-        for _ in range(1 if quick else 2):
+        for _ in range(rounds or (1 if quick else 2)):
             for live in runs:
                 runs[live].append(run_once(path, Path(tmp) / "runs", live))
     rows = []
@@ -220,8 +226,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.live", description=__doc__)
     parser.add_argument("--quick", action="store_true", help="4 orbits, one run each")
     parser.add_argument("--json", action="store_true", help="the rows as JSON on stdout")
+    parser.add_argument(
+        "--rounds", type=int, default=None, help="alternated rounds (default 2, --quick 1)"
+    )
     args = parser.parse_args(argv)
-    rows = bench_live(args.quick)
+    rows = bench_live(args.quick, args.rounds)
     if args.json:
         print(json.dumps(rows))
     else:

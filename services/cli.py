@@ -33,7 +33,7 @@ def ros2_missing() -> str | None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from services.config import DeploymentError, check_ros2_endpoint, load_deployment, with_ros2
-    from services.ground.launch.launcher import Launcher
+    from services.ground.launch.launcher import Launcher, Viewing
 
     if args.output is not None and not args.output.strip():
         print(
@@ -88,15 +88,45 @@ def cmd_run(args: argparse.Namespace) -> int:
         if warning := exposure_warning(address):
             print(f"ddvi run: warning: {warning}", file=sys.stderr)
         live = str(address)
+    if (why := _pace_refused(args, dep.run.mode, dep.run.rate)) is not None:
+        print(f"ddvi run: {why}", file=sys.stderr)
+        return EXIT_USAGE
+    viewing = Viewing(live, args.rate or 0.0, args.wait_for_client and live is not None)
     launcher = Launcher(
         dep,
         out_root=args.output,
         quiet=args.quiet,
         folder_mode=args.folder_mode,
-        live=live,
+        viewing=viewing,
         table=table,
     )
     return launcher.execute()
+
+
+def _pace_refused(args: argparse.Namespace, mode: str, rate: float) -> str | None:
+    """Why ``--rate`` or ``--wait-for-client`` cannot be, in one line, or None."""
+    if args.wait_for_client and args.live is None:
+        return "--wait-for-client waits for a client of the live view: add --live"
+    if args.rate is not None and mode != "lockstep":
+        return (
+            f"--rate paces lock-step; this deployment flies in real time at run.rate = {rate:g} "
+            "(set run.rate there instead)"
+        )
+    return None
+
+
+def pace(text: str) -> float:
+    """``--rate``: simulated seconds per wall second, a positive number."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(
+            f"expected simulated seconds per wall second, a positive number such as 3000, "
+            f"got {text!r}"
+        )
+    return value
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
@@ -146,8 +176,22 @@ def _run_arguments(p: argparse.ArgumentParser) -> None:
         nargs="?",
         const=LIVE_DEFAULT,
         metavar="HOST:PORT",
-        help=f"serve every message to Foxglove as it flies (default {LIVE_DEFAULT}; needs "
-        "foxglove-sdk; docs/live.md)",
+        help=f"serve every message to Foxglove as it flies (default {LIVE_DEFAULT}, or "
+        "ws://HOST:PORT; needs foxglove-sdk; docs/live.md)",
+    )
+    p.add_argument(
+        "--rate",
+        type=pace,
+        default=None,
+        metavar="R",
+        help="fly lock-step no faster than R times real time, for a person to watch (3000: "
+        "the default mission in about 75 s); the mission flown is the same (default: as fast "
+        "as it goes)",
+    )
+    p.add_argument(
+        "--wait-for-client",
+        action="store_true",
+        help="with --live: the first step waits until a client (Foxglove) subscribes",
     )
     p.add_argument(
         "--ros2",

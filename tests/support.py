@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import psutil
 
@@ -29,6 +29,14 @@ def wait_until(predicate: Callable[[], bool], timeout: float = TIMEOUT) -> bool:
             return False
         time.sleep(0.01)
     return True
+
+
+def json_messages(summary: Any) -> int:
+    """The messages on a recording's JSON channels, from its mcap summary: the bus's (the 3D
+    scene beside them, protobuf, is made from them)."""
+    counts = summary.statistics.channel_message_counts
+    channels = summary.channels
+    return sum(n for c, n in counts.items() if channels[c].message_encoding == "json")
 
 
 def unique_run_name(prefix: str = "test") -> str:

@@ -16,11 +16,17 @@ run.hang_timeout ends it with status 1 naming the controller; one that goes away
 once and its deputy holds its last command; docs/health.md).
 Real-time mode: paces the samples to
 wall time times run.rate and never waits.
+A pace (``ddvi run --rate R``, the ``--rate`` argument here) flies lock-step no faster than R
+simulated seconds per wall second, for a person to watch: each step's samples leave once wall
+time has caught up with their simulation time over R; nothing else changes, so the mission
+flown is the one flown at full speed.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import functools
 import queue
 import sys
 import time
@@ -47,10 +53,12 @@ from services.interface import (
 from services.model import ReentryError, Truth, duration, on_grid, open_truth
 
 
-def main(ctx: ServiceContext) -> int:
+def main(ctx: ServiceContext, pace: float = 0.0) -> int:
+    """Fly the mission (``pace``: lock-step's simulated seconds per wall second at most; 0 as
+    fast as it goes)."""
     truth = open_truth(ctx.deployment)
     try:
-        return ServiceHost(ctx).drive(EnvironmentService(ctx, truth))
+        return ServiceHost(ctx).drive(EnvironmentService(ctx, truth, pace))
     finally:
         truth.close()
 
@@ -65,12 +73,14 @@ class EnvironmentService:
     ----------
     ctx : the service's context (its bus, deployment, stop request).
     truth : the truth model every craft is propagated with.
+    pace : in lock-step, simulated seconds per wall second at most (0: as fast as it goes).
     """
 
     ready_at_start = True
 
-    def __init__(self, ctx: ServiceContext, truth: Truth) -> None:
+    def __init__(self, ctx: ServiceContext, truth: Truth, pace: float = 0.0) -> None:
         self.ctx = ctx
+        self.pace = pace if ctx.deployment.run.mode == "lockstep" else 0.0
         dep = self.dep = ctx.deployment
         self.run_cfg = run = dep.run
         # every command that reaches this service is also observed after its link has
@@ -143,6 +153,7 @@ class EnvironmentService:
             for level, text in said:
                 self.ctx.log(level, text, t_k)
             sigma_BN = model.attitudes(traj)
+            self.keep_pace(t_next)
             # lock-step: the step's samples leave together, one zenoh sample per topic (each
             # message keeps its own seq and time); real time paces them one by one
             with self.ctx.bus.batch() if run.mode == "lockstep" else contextlib.nullcontext():
@@ -155,6 +166,14 @@ class EnvironmentService:
                 self.ctx.publish_stats(t_k, counters)
         self.completed = t_k >= self.t_end - 1e-6
         return 0 if self.completed else 3
+
+    def keep_pace(self, t: float) -> None:
+        """With a pace, wait until wall time has caught up with simulation time ``t`` (a stop
+        request ends the wait); a mission slower than its pace never waits."""
+        if self.pace > 0:
+            delay = self.wall0 + t / self.pace - time.monotonic()
+            if delay > 0:
+                self.ctx.stop.wait(delay)
 
     # -- publishing ---------------------------------------------------------------------------
 
@@ -207,4 +226,8 @@ class EnvironmentService:
 
 
 if __name__ == "__main__":
-    sys.exit(run_service(main, "environment"))
+    # --rate R is the environment's own argument (ddvi run --rate); the rest are every service's
+    options = argparse.ArgumentParser(add_help=False)
+    options.add_argument("--rate", type=float, default=0.0)
+    known, rest = options.parse_known_args()
+    sys.exit(run_service(functools.partial(main, pace=known.rate), "environment", rest))

@@ -25,6 +25,7 @@ from benchmarks.foxglove_client import SUBPROTOCOL, FoxgloveClient, Received
 from services.cli import main as ddvi
 from services.config import deployment_from_table, load_deployment
 from services.ground.monitoring.live import (
+    DEPLOYMENT_TOPIC,
     LIVE_GAINS_SCHEMA,
     LiveServer,
     live_gains_topic,
@@ -54,6 +55,7 @@ name = "ddvi"
 controller = "ddvi"
 learning = { learn_at_orbits = 1.0, interval = 120.0, max_iterations = 20000 }
 """
+SCENE_ESTIMATES = ("scene/lqr/estimate", "scene/ddvi/estimate")
 # every topic of SHORT's topology (docs/interface.md) and the schema it carries
 SERVICES = ["monitor", "nav-lqr", "ctrl-lqr", "nav-ddvi", "ctrl-ddvi", "environment", "launcher"]
 TOPOLOGY_OF_SHORT = {
@@ -82,28 +84,33 @@ def schema_of(channel: dict[str, Any]) -> dict[str, Any]:
     return json.loads(channel["schema"])
 
 
-def check_channels(advertised: dict[str, dict[str, Any]], liveliness: bool) -> None:
+def check_channels(advertised: dict[str, dict[str, Any]]) -> None:
     """Every topic of the topology advertised with the recording's schema; the others are
-    the live view's gains against K* and (from the monitor) each service's liveliness."""
+    the live view's gains against K*, the deployment, the 3D scene and each service's
+    liveliness."""
     for topic, schema in TOPOLOGY_OF_SHORT.items():
         assert advertised[topic]["schemaName"] == f"ddvi.{schema}", topic
         assert schema_of(advertised[topic]) == message_json_schema(SCHEMAS[schema]), topic
     extra = {live_gains_topic(d): "ddvi.live_gains" for d in ("lqr", "ddvi")}
-    if liveliness:
-        extra |= {f"alive/{s}": "ddvi.alive" for s in SERVICES if s != "launcher"}
+    extra |= {DEPLOYMENT_TOPIC: "ddvi.deployment"}
+    extra |= {"scene/transforms": "foxglove.FrameTransforms"}
+    extra |= {t: "foxglove.SceneUpdate" for t in ("scene/formation", *SCENE_ESTIMATES)}
+    extra |= {f"alive/{s}": "ddvi.alive" for s in SERVICES if s != "launcher"}
     assert {t: c["schemaName"] for t, c in advertised.items() if t not in TOPOLOGY_OF_SHORT} == (
         extra
     )
     assert schema_of(advertised["live/ddvi/gains"]) == LIVE_GAINS_SCHEMA
-    if liveliness:
-        assert schema_of(advertised["alive/monitor"]) == ALIVE_SCHEMA
+    assert schema_of(advertised["alive/monitor"]) == ALIVE_SCHEMA
 
 
 def check_times(messages: list[Received]) -> None:
     """Every bus message's time is its simulation time t (the recording's JSON); the live
-    gains carry their gains message's."""
+    gains carry their gains message's, the deployment t = 0, and the scene the time of the
+    step it draws (its own stamps: ``test_live_scene``)."""
     for m in messages:
-        if not m.topic.startswith("alive/"):
+        if m.topic == DEPLOYMENT_TOPIC:
+            assert m.timestamp == 0
+        elif not m.topic.startswith(("alive/", "scene/")):
             assert m.timestamp == ns(m.json()["t"]), m.topic
 
 
@@ -114,8 +121,12 @@ def test_an_address_is_host_and_port_and_anything_else_says_what_to_give() -> No
     assert parse_address("127.0.0.1:8765") == LiveAddress("127.0.0.1", 8765)
     assert parse_address("9000") == LiveAddress("127.0.0.1", 9000)
     assert parse_address("[::1]:9000").url == "ws://[::1]:9000"
-    for bad in ("deployments/rendezvous.toml", "host:0", "host:70000", ":x"):
-        with pytest.raises(LiveError, match="give HOST:PORT"):
+    # the URL the live view says it serves on, pasted back
+    assert parse_address("ws://127.0.0.1:8765") == LiveAddress("127.0.0.1", 8765)
+    assert parse_address("WS://localhost:9000/") == LiveAddress("localhost", 9000)
+    assert parse_address("ws://[::1]:9000").url == "ws://[::1]:9000"
+    for bad in ("deployments/rendezvous.toml", "host:0", "host:70000", ":x", "ws://", "http://h:1"):
+        with pytest.raises(LiveError, match="give HOST:PORT or ws://HOST:PORT"):
             parse_address(bad)
 
 
@@ -310,13 +321,14 @@ def test_ddvi_run_live_serves_every_topic_at_simulation_time(
     live_run: tuple[Path, FoxgloveClient, float],
 ) -> None:
     folder, client, sim_time = live_run
-    check_channels(client.advertised(), liveliness=True)
+    check_channels(client.advertised())
     check_times(client.messages)
     # at least one message of every topic the recording has, each decoding as it does there
     recorded, _ = read_recording(folder / "recording.mcap")
     served = {m.topic for m in client.messages}
-    assert {r.topic for r in recorded if r.topic != "alive/monitor"} <= served
-    first = {m.topic: m.json() for m in reversed(client.messages)}
+    recorded_topics = {r.topic for r in recorded if r.topic != "alive/monitor"}
+    assert recorded_topics <= served
+    first = {m.topic: m.json() for m in reversed(client.messages) if m.topic in recorded_topics}
     for r in recorded:
         if not r.topic.startswith("alive/") and r.data["seq"] == first[r.topic]["seq"]:
             assert r.data == first[r.topic]
@@ -426,7 +438,7 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait()
-    check_channels(client.advertised(), liveliness=False)
+    check_channels(client.advertised())
     check_times(client.messages)
     # every topic the recording has twice or more after the client's first message, served
     # too (a topic said once, as the LQR's gains, may come before the client subscribed to
@@ -438,6 +450,11 @@ def test_ddvi_monitor_live_serves_a_running_mission(tmp_path: Path) -> None:
     )
     heard = {topic for topic, n in after.items() if n >= 2}
     assert heard - {"stats/monitor"} <= set(client.counts)
+    # each service's liveliness, up when the tap started: sent to the client as it joined
+    alive = [
+        m.json() for m in client.messages if m.topic.startswith("alive/") and m.json()["alive"]
+    ]
+    assert {a["service"] for a in alive} >= {s for s in SERVICES if s != "launcher"}
 
 
 def _final_clock_served(client: FoxgloveClient) -> bool:

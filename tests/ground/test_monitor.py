@@ -33,7 +33,7 @@ from services.ground.monitoring.tap import add_monitor_arguments, format_sample,
 from services.ground.storage.recording import read_recording
 from services.interface import topics
 from services.model import lqr_gains, orbit_period
-from tests.support import wait_until
+from tests.support import json_messages, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT = 10.0
@@ -288,7 +288,7 @@ def test_monitor_records_and_reports_a_mission(monitor: Monitor) -> None:
         reader = make_reader(f)
         summary_rec = reader.get_summary()
         assert summary_rec is not None and summary_rec.statistics is not None
-        n_stat = summary_rec.statistics.message_count
+        n_stat = json_messages(summary_rec)
         first = next(iter(reader.iter_messages(topics=["truth/beta"])))
     data, messages, complete = recorded_topics(out / "recording.mcap")
     assert complete and n_stat == len(messages)

@@ -99,8 +99,8 @@ def replayed(dep: Deployment, run: str, records: Any) -> tuple[RunData, dict[str
     wall = _receive_wall_time(records)
     for m in records.messages:
         channel = records.channels.get(m.channel_id)
-        if channel is None:
-            continue
+        if channel is None or channel.message_encoding != "json":
+            continue  # the scene is made from the bus's messages: not one of them
         counters["recorded"] += 1  # every record, liveliness too: as the monitor counts them
         if channel.topic.startswith(alive):
             continue

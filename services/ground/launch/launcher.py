@@ -25,7 +25,9 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -41,17 +43,48 @@ from services.ground.launch.netns import hub_address
 from services.ground.launch.processes import ServiceProcesses
 from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.launch.supervisor import Supervisor
-from services.interface.topics import ROS2_GATEWAY, fault_topic
+from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
+from services.interface.topics import ROS2_GATEWAY, fault_topic, log_topic
 from services.model import holding_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
 REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
 
 
+def _live_view(
+    bus: Bus, live: str | None, wait: bool, say: Callable[[str], None]
+) -> tuple[str, threading.Event]:
+    """Say where the live view serves (``live``, HOST:PORT); its URL, and the event set when
+    the monitor says on its log that the live view has its first client (listened to when
+    the first step ``wait``s for it)."""
+    watched = threading.Event()
+    if not live:
+        return "", watched
+    url = parse_address(live).url
+    say(f"live view on {url} (Foxglove: Open connection, Foxglove WebSocket; docs/live.md)")
+
+    def on_log(_topic: str, msg: Any) -> None:
+        if msg.body["text"].startswith(CLIENT_JOINED):
+            watched.set()
+
+    if wait:
+        bus.subscribe(log_topic("monitor"), on_log, expected_schema="log")
+    return url, watched
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+@dataclasses.dataclass(frozen=True)
+class Viewing:
+    """How a person watches the run (``ddvi run --live --rate --wait-for-client``)."""
+
+    live: str | None = None  # HOST:PORT the monitor serves the live view on, or none
+    rate: float = 0.0  # lock-step's simulated seconds per wall second at most; 0: no pace
+    wait_for_client: bool = False  # with ``live``: the first step waits for its first client
 
 
 class Launcher:
@@ -61,16 +94,15 @@ class Launcher:
         out_root: str | None = None,
         quiet: bool = False,
         folder_mode: int | None = None,
-        live: str | None = None,
+        viewing: Viewing | None = None,
         table: dict[str, Any] | None = None,
     ) -> None:
         self.dep = dep
+        self.viewing = view = viewing or Viewing()
         # the deployment's table when a command-line option changed it from its file's
         # (--ros2): the run folder keeps it as the deployment the run flies, and the services
         # read it there
         self.table = table
-        # HOST:PORT the monitor serves the live view on (services.ground.monitoring.live)
-        self.live = live
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.run = f"{dep.run.name}-{stamp}-{os.getpid() % 10000}"  # another if it exists
         self.root = Path(out_root or dep.run.output)
@@ -78,11 +110,13 @@ class Launcher:
         self.folder_mode = FOLDER_MODE if folder_mode is None else folder_mode
         self.port = dep.bus.port or free_port()
         self.hub = f"tcp/127.0.0.1:{self.port}"
-        self.services = ServiceProcesses(dep, self.run, self.out, self.hub, self.port, quiet, live)
+        self.services = ServiceProcesses(
+            dep, self.run, self.out, self.hub, self.port, quiet, view.live, view.rate
+        )
         self.quiet = quiet
         self.signals = lifecycle.StopSignals()
         self.supervisor = Supervisor(
-            dep, self.services, self.say, lambda: self.signals.received is not None
+            dep, self.services, self.say, lambda: self.signals.received is not None, view.rate
         )
 
     def say(self, text: str, error: bool = False) -> None:
@@ -189,7 +223,12 @@ class Launcher:
             self.services.exited,
             lambda: self.signals.received is not None,
         )
-        if how == "alive":
+        return self._awaited(how, what, "starting")
+
+    def _awaited(self, how: str, what: Any, doing: str) -> int | None:
+        """None when the wait ended as it should, else the exit status, said (``lifecycle``'s
+        ``await_alive`` and ``await_client``)."""
+        if how in ("alive", "watched"):
             return None
         if how == "stopped":
             return lifecycle.EXIT_FAILED  # _after_stop makes it 128 + N
@@ -198,7 +237,7 @@ class Launcher:
             log = self.out / "logs" / f"{name}.log"
             tail = "".join(f"\n    {line}" for line in lifecycle.last_lines(log))
             self.say(
-                f"{name} exited with status {rc} while starting; last lines of {log}:"
+                f"{name} exited with status {rc} while {doing}; last lines of {log}:"
                 f"{tail or ' (empty)'}",
                 error=True,
             )
@@ -215,11 +254,6 @@ class Launcher:
         # all at once: a service declares itself alive, and publishes, only once it sees the
         # monitor (services.flight.runtime), so that the recording has everything from the
         # first message on, and the environment flies once it sees every other service alive
-        if self.live:
-            self.say(
-                f"live view on ws://{self.live} (Foxglove: Open connection, Foxglove "
-                "WebSocket; docs/live.md)"
-            )
         if (ros2 := self.dep.ros2).enabled:
             self.say(
                 f"ROS 2 on {ros2.endpoint}, domain {ros2.domain_id}: {ROS2_GATEWAY} joins the "
@@ -228,11 +262,21 @@ class Launcher:
         with Bus(session, self.run, "launcher") as bus:
             faults: queue.SimpleQueue = queue.SimpleQueue()
             bus.subscribe(fault_topic("kill"), queue_handler(faults), expected_schema="fault")
-            for name in [*first, "environment"]:
+            wait = self.viewing.wait_for_client
+            url, watched = _live_view(bus, self.viewing.live, wait, self.say)
+            for name in first if wait else [*first, "environment"]:
                 self.services.start(name)
             if (status := self._await(session, first)) is not None:
                 return status
             self.say(f"{len(first)} services alive in {time.monotonic() - started:.1f} s")
+            if wait:
+                self.say(f"waiting for a client of {url}: the mission flies once one subscribes")
+                stopping = lambda: self.signals.received is not None  # noqa: E731
+                how, what = lifecycle.await_client(watched, self.services.exited, stopping)
+                if (status := self._awaited(how, what, "waiting for a client")) is not None:
+                    return status
+                self.say("a client is watching: the mission flies")
+                self.services.start("environment")
             status = self.supervisor.watch(bus, faults)
             if status is not None:
                 return status

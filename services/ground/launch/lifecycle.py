@@ -120,6 +120,22 @@ def log_reason(path: Path) -> str:
     return lines[-1] if lines else "its log is empty"
 
 
+def await_client(
+    watched: threading.Event,
+    exited: Callable[[], tuple[str, int] | None],
+    stopping: Callable[[], bool],
+) -> tuple[str, Any]:
+    """Wait, as long as it takes, until ``watched`` (the live view has a client), watching the
+    children: ("watched", None); ("exited", (name, status)) as soon as ``exited()`` names a
+    child that ended; ("stopped", None) when ``stopping()``."""
+    while not watched.wait(POLL):
+        if stopping():
+            return "stopped", None
+        if (gone := exited()) is not None:
+            return "exited", gone
+    return "watched", None
+
+
 def await_alive(
     session: zenoh.Session,
     run: str,

@@ -42,7 +42,8 @@ class ServiceProcesses:
     """The services of run ``run`` of ``dep``, each its own OS process in its own session,
     logging to ``out/logs/<name>.log``, connecting to ``hub`` (or, on another host, to the
     launcher's address there, on ``port``), the monitor serving the live view on ``live``
-    when given."""
+    when given, the environment flying lock-step at ``rate`` times real time at most (0: as
+    fast as it goes)."""
 
     def __init__(
         self,
@@ -53,9 +54,11 @@ class ServiceProcesses:
         port: int,
         quiet: bool,
         live: str | None = None,
+        rate: float = 0.0,
     ) -> None:
         self.dep, self.run, self.out = dep, run, out
         self.hub, self.port, self.quiet, self.live = hub, port, quiet, live
+        self.rate = rate
         self.procs: dict[str, Process] = {}
 
     def __getitem__(self, name: str) -> Process:
@@ -97,6 +100,7 @@ class ServiceProcesses:
             str(self.out),
             *(["--join"] if join else []),
             *(["--live", self.live] if name == "monitor" and self.live else []),
+            *(["--rate", repr(self.rate)] if name == "environment" and self.rate else []),
             *credentials.service_arguments(self.dep, self.out, name),
         ]
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}

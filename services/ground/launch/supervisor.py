@@ -84,6 +84,7 @@ class Supervisor:
     services : the run's processes (and its folder, ``services.out``: their logs).
     say : how the launcher says a line on the terminal (``error``: even with --quiet).
     stopping : whether a stop signal has come.
+    rate : the pace lock-step flies at (``ddvi run --rate``; 0: none), which spaces its clocks.
     """
 
     def __init__(
@@ -92,6 +93,7 @@ class Supervisor:
         services: ServiceProcesses,
         say: Callable[..., None],
         stopping: Callable[[], bool],
+        rate: float = 0.0,
     ) -> None:
         self.dep, self.services = dep, services
         self.say, self.stopping = say, stopping
@@ -99,7 +101,10 @@ class Supervisor:
         self.kills = 0
         self.monitor_died = False  # then the report is recovered from its recording
         run = dep.run
-        paced = run.nav_period / run.rate if run.mode == "realtime" else 0.0
+        if run.mode == "realtime":
+            paced = run.nav_period / run.rate
+        else:  # a paced lock-step's clocks are a step's worth of wall time apart
+            paced = run.fsw_period / rate if rate > 0 else 0.0
         self.clock_silence = run.hang_timeout + CLOCK_MARGIN + paced
 
     def watch(self, bus: Bus, faults: queue.SimpleQueue) -> int | None:

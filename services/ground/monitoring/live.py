@@ -13,13 +13,22 @@ gains messages: the gains it flies and the optimal gains K*, L* of the truth's m
 (``services.model.reference_gains``), each flattened, which Foxglove's message
 paths index (they index one array level, and K is a matrix).
 
-The server never holds the caller up: a message no client subscribes to is not even encoded,
-and a client that reads too slowly loses its oldest messages (``BACKLOG``) instead of slowing
-the sender.  An error in the live view is logged and counted; it never reaches the recording.
+It also serves the formation as a 3D scene in Foxglove's schemas (``scene``: the scene
+messages the monitor records, ``services.ground.monitoring.scene``) and the run's deployment
+(``DEPLOYMENT_TOPIC``).  A client that subscribes is sent the last message of each state-like
+channel at once (``services.ground.monitoring.live_latch``), so that one joining late sees who
+is alive, each controller's phase, the gains against K* and the scene without waiting for them
+to change.
+
+The server never holds the caller up: a message no client subscribes to is not even encoded
+(but a latched channel's last, when a client subscribes), and a client that reads too slowly
+loses its oldest messages (``BACKLOG``) instead of slowing the sender.  An error in the live
+view is logged and counted; it never reaches the recording.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import logging
@@ -31,6 +40,8 @@ import orjson
 from services.bus import worth_saying
 from services.config import Deployment
 from services.ground.monitoring.live_address import LiveAddress
+from services.ground.monitoring.live_latch import LATCHED, Latch, Payload, schema_kind
+from services.ground.monitoring.scene import SceneMessage
 from services.ground.storage.recording import (
     ALIVE_SCHEMA,
     REJECTED_SCHEMA,
@@ -61,6 +72,23 @@ LIVE_GAINS_SCHEMA: dict[str, Any] = {
     },
     "required": ["sc", "t", "source", "K", "L", "K_star", "L_star"],
 }
+DEPLOYMENT_TOPIC = "live/deployment"
+"""The run's deployment, every key with its value (``DEPLOYMENT_SCHEMA``), sent at t = 0."""
+DEPLOYMENT_SCHEMA: dict[str, Any] = {
+    "title": "ddvi.deployment",
+    "type": "object",
+    "description": "the run and its deployment, every key with the value it flies with",
+    "properties": {
+        "run": {"type": "string"},
+        "path": {"type": "string", "description": "the deployment file"},
+        "deployment": {"type": "object"},
+    },
+    "required": ["run", "path", "deployment"],
+}
+
+
+def _json(data: Any) -> bytes:
+    return orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
 
 
 def live_gains_topic(deputy: str) -> str:
@@ -86,6 +114,23 @@ def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]
     return out
 
 
+def _subscriptions(latch: Latch, watched: threading.Event) -> Any:
+    """The server's listener (a ``foxglove.websocket.ServerListener``, whose other callbacks
+    do nothing): each subscription is owed its channel's last message (``Latch``); the first
+    sets ``watched``."""
+    from foxglove.websocket import ServerListener
+
+    class Subscriptions(ServerListener):
+        def on_subscribe(self, client: Any, channel: Any) -> None:
+            try:
+                latch.subscribed(channel.topic)
+                watched.set()
+            except Exception:  # a callback of the server's must never raise
+                log.exception("live view: a subscription to %s not taken", channel.topic)
+
+    return Subscriptions()
+
+
 class LiveServer:
     """A Foxglove WebSocket server of one run's messages (see the module's docstring)."""
 
@@ -93,11 +138,12 @@ class LiveServer:
         self,
         address: LiveAddress,
         name: str,
-        advertise: dict[str, tuple[str, dict[str, Any]]],
+        advertise: dict[str, tuple[str, dict[str, Any] | Any]],
         references: dict[str, tuple[list[float], list[float]]],
     ) -> None:
         """Listen on ``address`` and advertise ``advertise`` (topic -> (schema name, JSON
-        schema)) at once; other topics are advertised when their first message comes."""
+        schema or Foxglove schema)) at once; other topics are advertised when their first
+        message comes."""
         import foxglove
         from foxglove.websocket import Capability
 
@@ -110,59 +156,91 @@ class LiveServer:
         self.counters = {"served": 0, "errors": 0, "unserved": 0}
         for topic, (schema_name, schema) in advertise.items():
             self._channel(topic, schema_name, schema)
+        self.latch = Latch(self._resend)
+        self.watched = threading.Event()  # set once a client has subscribed to a channel
         self._server = foxglove.start_server(
             name=name,
             host=address.host,
             port=address.port,
             capabilities=[Capability.Time],
+            server_listener=_subscriptions(self.latch, self.watched),
             context=self._context,
             message_backlog_size=BACKLOG,
         )
 
-    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any]) -> Any:
+    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any] | Any) -> Any:
+        """``topic``'s channel, made on first use with ``schema``: a JSON schema (a dict: the
+        recording's), or a Foxglove schema from the SDK (the scene's, protobuf)."""
         channel = self._channels.get(topic)
         if channel is None:
-            data = json.dumps(schema).encode()  # the recording's schema bytes
+            if isinstance(schema, dict):
+                data = json.dumps(schema).encode()  # the recording's schema bytes
+                schema = self._foxglove.Schema(name=schema_name, encoding="jsonschema", data=data)
+                encoding = "json"
+            else:
+                encoding = schema.encoding
             channel = self._channels[topic] = self._foxglove.Channel(
-                topic,
-                schema=self._foxglove.Schema(name=schema_name, encoding="jsonschema", data=data),
-                message_encoding="json",
-                context=self._context,
+                topic, schema=schema, message_encoding=encoding, context=self._context
             )
             self._schema_names[topic] = schema_name
         return channel
 
     def _send(
-        self, topic: str, schema_name: str, schema: dict[str, Any], data: Any, t: int
+        self,
+        topic: str,
+        schema_name: str,
+        schema: dict[str, Any] | Any,
+        payload: Payload,
+        t: int,
     ) -> None:
+        """Serve ``payload()`` on ``topic`` at ``t`` ns if a client subscribes to it; keep it
+        for a client to come when its channel is latched."""
         channel = self._channel(topic, schema_name, schema)
         if self._schema_names[topic] != schema_name:  # one channel a topic: a stray schema
             self.counters["unserved"] += 1
-        elif channel.has_sinks():  # nobody subscribed: not even encoded
-            channel.log(orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY), log_time=t)
+            return
+        if schema_kind(schema_name) in LATCHED:
+            self.latch.keep(topic, payload, t)
+        if channel.has_sinks():  # nobody subscribed: not even encoded
+            channel.log(payload(), log_time=t)
             self.counters["served"] += 1
+
+    def _resend(self, topic: str, data: bytes, t: int) -> None:
+        """A latched message, to a client that has just subscribed (the latch's thread)."""
+        self._channels[topic].log(data, log_time=t)
 
     def _failed(self, what: str) -> None:
         n = self.counters["errors"] = self.counters["errors"] + 1
         if worth_saying(n):
             log.exception("live view: could not serve %s (#%d)", what, n)
 
-    def message(self, topic: str, msg: Message) -> None:
-        """Serve a decoded bus message at its simulation time; the time master's clock moves
-        the server's time."""
+    def message(self, topic: str, msg: Message, recorded: bytes | None = None) -> None:
+        """Serve a decoded bus message at its simulation time (``recorded``: its JSON as the
+        recording has it, when it was written there); the time master's clock moves the
+        server's time."""
         try:
             t = ns(msg.t)
             if msg.schema == "clock" and msg.src == TIME_MASTER and t > self._time:
                 self._time = t
                 self._server.broadcast_time(t)
-            schema = _bus_schema(msg.schema)
-            self._send(topic, f"ddvi.{msg.schema}", schema, message_record(msg), t)
+            if recorded is None:
+                payload: Payload = functools.partial(_json, message_record(msg))
+            else:
+                payload = functools.partial(bytes, recorded)  # bytes of bytes: no copy
+            self._send(topic, f"ddvi.{msg.schema}", _bus_schema(msg.schema), payload, t)
             if msg.schema == "gains":
                 self._gains(topic.split("/")[1], msg)  # the topic's deputy, not the body's
         except Exception:
             self._failed(topic)
 
     def _gains(self, sc: str, msg: Message) -> None:
+        topic = live_gains_topic(sc)
+        payload = functools.partial(self._gains_payload, sc, msg)
+        self._send(topic, "ddvi.live_gains", LIVE_GAINS_SCHEMA, payload, ns(msg.t))
+
+    def _gains_payload(self, sc: str, msg: Message) -> bytes:
+        """A deputy's gains against K* as known when it is sent: a client joining once K* is
+        solved gets it with the last gains, however long before those were flown."""
         K_star, L_star = self.references.get(sc, ([], []))
         b = msg.body
         data = {
@@ -174,13 +252,29 @@ class LiveServer:
             "K_star": K_star,
             "L_star": L_star,
         }
-        topic = live_gains_topic(sc)
-        self._send(topic, "ddvi.live_gains", LIVE_GAINS_SCHEMA, data, ns(msg.t))
+        return _json(data)
+
+    def scene(self, msg: SceneMessage) -> None:
+        """Serve a scene message (``services.ground.monitoring.scene``), as recorded."""
+        try:
+            data = msg.data
+            self._send(msg.topic, msg.schema.name, msg.schema, lambda: data, msg.log_ns)
+        except Exception:
+            self._failed(msg.topic)
+
+    def deployment(self, dep: Deployment, run: str) -> None:
+        """Serve ``run``'s deployment (``DEPLOYMENT_TOPIC``), at t = 0."""
+        try:
+            data = {"run": run, "path": dep.path, "deployment": dataclasses.asdict(dep)}
+            payload = functools.partial(_json, data)
+            self._send(DEPLOYMENT_TOPIC, "ddvi.deployment", DEPLOYMENT_SCHEMA, payload, 0)
+        except Exception:
+            self._failed(DEPLOYMENT_TOPIC)
 
     def rejected(self, topic: str, key: str, payload: bytes, err: MessageError, t: float) -> None:
         """Serve a payload that did not decode, as the recording has it, at simulation time t."""
         try:
-            data = rejected_record(key, payload, err)
+            data = functools.partial(_json, rejected_record(key, payload, err))
             self._send(f"rejected/{topic}", "ddvi.rejected", REJECTED_SCHEMA, data, ns(t))
         except Exception:
             self._failed(f"rejected/{topic}")
@@ -188,7 +282,7 @@ class LiveServer:
     def alive(self, service: str, alive: bool, t: float) -> None:
         """Serve a liveliness change, as the recording has it, at simulation time t."""
         try:
-            data = {"service": service, "alive": alive}
+            data = functools.partial(_json, {"service": service, "alive": alive})
             self._send(topics.alive_topic(service), "ddvi.alive", ALIVE_SCHEMA, data, ns(t))
         except Exception:
             self._failed(topics.alive_topic(service))
@@ -200,27 +294,38 @@ class LiveServer:
 
     def close(self) -> None:
         """Stop serving (clients see the connection close); idempotent."""
+        self.latch.close()
         try:
             self._server.stop()
         except Exception:
             log.exception("live view: could not stop the server")
-        log.info("live view closed: %s", self.counters)
+        log.info("live view closed: %s", {**self.counters, "latched": self.latch.sent})
 
 
 def live_server(
-    address: LiveAddress, dep: Deployment, run: str, liveliness: bool = True
+    address: LiveAddress,
+    dep: Deployment,
+    run: str,
+    liveliness: bool = True,
+    scene: list[tuple[str, Any]] | None = None,
 ) -> LiveServer:
     """A LiveServer of ``run`` advertising every topic of ``dep`` (with its liveliness topics:
-    ``liveliness``) and each deputy's gains against K*.  K* is solved on a thread of its own
-    (a second of imports and Riccati solves, which must not hold the caller up): the live
-    gains carry an empty K* until it is known."""
-    advertise = {t: (f"ddvi.{s}", _bus_schema(s)) for t, s in dep.topics().items()}
+    ``liveliness``), each deputy's gains against K*, the deployment and the ``scene``'s
+    channels ((topic, Foxglove schema); ``services.ground.monitoring.scene.Scene.channels``).
+    K* is solved on a thread of its own (a second of imports and Riccati solves, which must
+    not hold the caller up): the live gains carry an empty K* until it is known."""
+    advertise: dict[str, tuple[str, Any]] = {
+        t: (f"ddvi.{s}", _bus_schema(s)) for t, s in dep.topics().items()
+    }
     for d in dep.deputy:
         advertise[live_gains_topic(d.name)] = ("ddvi.live_gains", LIVE_GAINS_SCHEMA)
     if liveliness:
         for service in dep.services:
             advertise[topics.alive_topic(service)] = ("ddvi.alive", ALIVE_SCHEMA)
+    for topic, schema in scene or []:
+        advertise[topic] = (schema.name, schema)
     server = LiveServer(address, f"ddvi {run}", advertise, {})
+    server.deployment(dep, run)
 
     def solve() -> None:
         try:

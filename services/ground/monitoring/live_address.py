@@ -10,6 +10,11 @@ from dataclasses import dataclass
 
 LIVE_DEFAULT = "127.0.0.1:8765"
 """Where ``--live`` serves without an address: localhost, Foxglove's default port."""
+URL_SCHEME = "ws://"
+"""The scheme of the live view's URL (``LiveAddress.url``), also accepted in ``--live``."""
+CLIENT_JOINED = "live view: a client subscribed"
+"""How the monitor's log says its live view has its first client (what ``ddvi run --live
+--wait-for-client`` waits for before the first step)."""
 INSTALL = "pip install 'foxglove-sdk>=0.30'"
 """The command that adds the live view's one dependency."""
 
@@ -28,24 +33,28 @@ class LiveAddress:
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"ws://{host}:{self.port}"
+        return f"{URL_SCHEME}{host}:{self.port}"
 
     def __str__(self) -> str:
         return f"{self.host}:{self.port}"
 
 
 def parse_address(text: str) -> LiveAddress:
-    """``HOST:PORT`` (or ``PORT``, on localhost) as a LiveAddress; LiveError when it is not one."""
-    host, sep, port = text.strip().rpartition(":")
+    """``HOST:PORT``, ``PORT`` (on localhost) or the URL ``ws://HOST:PORT`` the live view says
+    it serves on, as a LiveAddress; LiveError when it is none of these."""
+    bare = text.strip()
+    if bare.lower().startswith(URL_SCHEME):  # the URL printed at start, pasted back
+        bare = bare[len(URL_SCHEME) :].rstrip("/")
+    host, sep, port = bare.rpartition(":")
     host = host.strip("[]") if sep else "127.0.0.1"
     try:
         number = int(port)
     except ValueError:
         number = 0
-    if not host or not 1 <= number <= 65535:
+    if not host or "/" in host or not 1 <= number <= 65535:  # "/": a path, or another scheme
         raise LiveError(
-            f"--live {text!r}: give HOST:PORT, e.g. {LIVE_DEFAULT} (a deployment "
-            "goes before --live)"
+            f"--live {text!r}: give HOST:PORT or ws://HOST:PORT, e.g. {LIVE_DEFAULT} (a "
+            "deployment goes before --live)"
         )
     return LiveAddress(host, number)
 

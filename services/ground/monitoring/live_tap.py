@@ -3,9 +3,10 @@
 A tap on the run's bus (as the observer, a subscribe-only user, on a secure bus) that serves
 every message it hears through ``services.ground.monitoring.live.LiveServer``: the channels of the
 run's deployment (attached to its recording) advertised at once, each message at its simulation
-time.  Liveliness changes are the monitor's alone (``ddvi run --live`` serves them).  It runs
-until Ctrl-C, ``--count`` messages or ``--seconds`` s; the flight never waits for it (the
-subscriber's callback only queues).
+time, the formation's 3D scene made from them (``services.ground.monitoring.scene``) and each
+service's liveliness (``alive/<service>``: the tokens there when it starts, then each change).
+It runs until Ctrl-C, ``--count`` messages or ``--seconds`` s; the flight never waits for it
+(the subscribers' callbacks only queue).
 """
 
 from __future__ import annotations
@@ -18,21 +19,24 @@ import sys
 import time
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import zenoh
 from mcap.exceptions import McapError
-from mcap.records import Attachment, Chunk, Message
+from mcap.records import Attachment, Chunk
+from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 
-from services.bus import error_text, open_session
+from services.bus import error_text, open_session, watch_alive
 from services.bus.security import OBSERVER
 from services.config import Deployment, DeploymentError, deployment_from_table
 from services.ground.launch.credentials import RunNotFoundError, find_run, run_folder
 from services.ground.monitoring.live import LiveServer, live_server
 from services.ground.monitoring.live_address import LiveError, check_live, exposure_warning
 from services.ground.monitoring.run_keys import run_keyexpr
+from services.ground.monitoring.scene import Scene, open_scene
 from services.ground.storage.recording import RECORDING
-from services.interface import MessageError, decode, schema_for_topic, unpack_batch
+from services.interface import Message, MessageError, decode, schema_for_topic, unpack_batch
 
 log = logging.getLogger("ddvi.live")
 
@@ -62,7 +66,7 @@ def attached_deployment(path: Path) -> Deployment | None:
             for record in StreamReader(f, skip_magic=False).records:
                 if isinstance(record, Attachment) and record.media_type == "application/toml":
                     return deployment_from_table(tomllib.loads(record.data.decode()), record.name)
-                if isinstance(record, Chunk | Message):
+                if isinstance(record, Chunk | McapMessage):
                     return None
     except (OSError, ValueError, DeploymentError, EOFError, McapError):
         pass  # not written whole yet
@@ -92,8 +96,10 @@ def serve_live(args: argparse.Namespace) -> int:
         except zenoh.ZError as exc:
             print(f"ddvi monitor: cannot connect to {bus.hub} ({error_text(exc)})", file=sys.stderr)
             return 1
+        scene = open_scene(dep)
         if dep is not None:
-            server = live_server(address, dep, bus.run, liveliness=False)
+            channels = scene.channels() if scene is not None else []
+            server = live_server(address, dep, bus.run, scene=channels)
         else:  # the topics are advertised as they come, and K* is not known
             server = LiveServer(address, f"ddvi {bus.run}", {}, {})
         stack.callback(server.close)
@@ -104,24 +110,29 @@ def serve_live(args: argparse.Namespace) -> int:
             flush=True,
         )
         limits = (int(args.count or 0), float(args.seconds or 0.0))
-        _serve(session, keyexpr, f"ddvi/{bus.run}/", server, *limits)
+        _serve(session, keyexpr, bus.run, server, scene, *limits)
     return 0
 
 
 def _serve(
     session: zenoh.Session,
     keyexpr: str,
-    prefix: str,
+    run: str,
     server: LiveServer,
+    scene: Scene | None,
     count: int,
     seconds: float,
 ) -> None:
-    """Serve what ``keyexpr`` hears until ``count`` messages (0: no limit), ``seconds`` s (0:
-    no limit) or Ctrl-C."""
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    """Serve what ``keyexpr`` hears of ``run``, the ``scene`` made from it and the run's
+    liveliness, until ``count`` messages (0: no limit), ``seconds`` s (0: no limit) or
+    Ctrl-C."""
+    inbox: queue.SimpleQueue[tuple[str | None, Any]] = queue.SimpleQueue()
     sub = session.declare_subscriber(
         keyexpr, lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes()))
     )
+    # a liveliness change is queued as (None, (service, up))
+    alive = watch_alive(session, run, "*", lambda name, up: inbox.put((None, (name, up))))
+    prefix = f"ddvi/{run}/"
     deadline = time.monotonic() + seconds if seconds > 0 else None
     served, sim_t = 0, 0.0
     try:
@@ -131,6 +142,9 @@ def _serve(
             try:
                 key, payload = inbox.get(timeout=POLL)
             except queue.Empty:
+                continue
+            if key is None:
+                server.alive(*payload, sim_t)
                 continue
             topic = key.removeprefix(prefix)
             try:
@@ -147,7 +161,19 @@ def _serve(
                 sim_t = max(sim_t, msg.t)
                 server.message(topic, msg)
                 served += 1
+                if scene is not None:
+                    _draw(scene, server, topic, msg)
     except KeyboardInterrupt:
         pass
     finally:
+        alive.undeclare()
         sub.undeclare()
+
+
+def _draw(scene: Scene, server: LiveServer, topic: str, msg: Message) -> None:
+    """Serve the scene messages ``msg`` completes; an error is logged, the tap goes on."""
+    try:
+        for m in scene.message(topic, msg):
+            server.scene(m)
+    except Exception:
+        log.exception("could not draw the scene at t = %s", msg.t)

@@ -34,9 +34,13 @@ final stats may arrive before the final clock; what arrives within ``FINAL_GRACE
 last service finished is still recorded. SIGTERM before that closes the recording and writes a
 partial report (``"completed": false``), also exit 0.
 
+The formation as a 3D scene in Foxglove's schemas (``services.ground.monitoring.scene``) is
+made from the truth and navigation received and recorded beside them.
+
 Live status: ``services.ground.monitoring.status``, refreshed every ``DRAW_PERIOD`` s.  With
 ``--live HOST:PORT`` (``ddvi run --live``) every message recorded is also served to Foxglove
-(``services.ground.monitoring.live``), after it is recorded and never in its way.
+(``services.ground.monitoring.live``), after it is recorded and never in its way; the first
+client is said on ``log/monitor`` (``CLIENT_JOINED``: what ``--wait-for-client`` waits for).
 """
 
 from __future__ import annotations
@@ -65,7 +69,8 @@ from services.ground.analysis.report import ReportNotWrittenError, write_report
 from services.ground.analysis.rundata import RunData
 from services.ground.monitoring.ending import Ending
 from services.ground.monitoring.live import LiveServer, live_server
-from services.ground.monitoring.live_address import parse_address
+from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
+from services.ground.monitoring.scene import Scene, open_scene
 from services.ground.monitoring.status import Status
 from services.ground.storage.disk import LogFile
 from services.ground.storage.record import RecordGaps
@@ -136,7 +141,9 @@ class Monitor:
         self.ever_alive: set[str] = set()
         self.others = [s for s in ctx.deployment.services if s != ctx.name]
         self.recorder: Recorder | None = None
+        self.scene: Scene | None = None  # the 3D scene, recorded (and served) beside
         self.live: LiveServer | None = None  # the live view, fed after the recorder
+        self.client_said = False  # the live view's first client said on log/monitor
 
     def open_recording(self) -> None:
         dep = self.ctx.deployment
@@ -179,6 +186,29 @@ class Monitor:
         for part in parts or (value,):  # a batch is recorded message by message
             self.handle_message(topic, key, part, recv_ns)
 
+    def draw(self, topic: str, msg: Message, recv_ns: int) -> None:
+        """The scene messages ``msg`` completes, recorded and served (an error is counted:
+        the recording goes on without the scene)."""
+        assert self.scene is not None and self.recorder is not None
+        try:
+            for m in self.scene.message(topic, msg):
+                self.recorder.scene(m.topic, m.schema, m.data, m.log_ns, recv_ns)
+                if self.live is not None:
+                    self.live.scene(m)
+        except Exception:
+            if worth_saying(n := self.tally("scene_errors")):
+                log.exception("could not draw the scene at t = %s (#%d)", msg.t, n)
+
+    def say_client(self) -> None:
+        """Say on ``log/monitor`` that the live view has its first client, once."""
+        if self.live is None or self.client_said or not self.live.watched.is_set():
+            return
+        self.client_said = True
+        try:
+            self.ctx.log("info", f"{CLIENT_JOINED} at t = {self.data.sim_t:.0f} s", self.data.sim_t)
+        except Exception:
+            log.exception("could not say the live view's first client")
+
     def tally(self, key: str) -> int:
         """Count one more ``key``; its count."""
         n = self.counters[key] = self.counters.get(key, 0) + 1
@@ -204,11 +234,11 @@ class Monitor:
         except MessageError as err:
             self.reject(topic, key, value, err, recv_ns)
             return
-        rec.message(topic, msg, recv_ns)  # everything received is recorded
+        recorded = rec.message(topic, msg, recv_ns)  # everything received is recorded
         self.counters["recorded"] = rec.messages
         self.data.received(msg)  # and counted against its publisher's stats (claims)
         if self.live is not None:
-            self.live.message(topic, msg)
+            self.live.message(topic, msg, recorded)  # the same JSON, encoded once
         if msg.schema == "clock" and msg.src != TIME_MASTER:
             if worth_saying(n := self.tally("refused.clock")):
                 log.warning(
@@ -227,6 +257,8 @@ class Monitor:
         except Exception:  # one odd message must not take the recording down
             self.counters["handler_errors"] += 1
             log.exception("could not use %s at t = %s", key, msg.t)
+        if self.scene is not None:  # what the report believes, and no other
+            self.draw(topic, msg, recv_ns)
         if msg.schema == "clock":
             self.acknowledge(msg)
 
@@ -344,6 +376,7 @@ def _record(ctx: ServiceContext, mon: Monitor, inbox: Inbox, status: Status) -> 
         if now - last_flush >= FLUSH_PERIOD:
             mon.recorder.flush()
             last_flush = now
+        mon.say_client()
         if now - last_draw >= DRAW_PERIOD:
             mon.count_floods()
             status.update(mon.counters)
@@ -446,11 +479,12 @@ def main(ctx: ServiceContext, live: str | None = None) -> int:
         raise
 
 
-def _open_live(ctx: ServiceContext, address: str) -> LiveServer | None:
-    """The live view on ``address``, or None (logged) when it cannot serve: the recording goes
-    on without it."""
+def _open_live(ctx: ServiceContext, address: str, scene: Scene | None) -> LiveServer | None:
+    """The live view on ``address`` (with the ``scene``'s channels), or None (logged) when it
+    cannot serve: the recording goes on without it."""
     try:
-        server = live_server(parse_address(address), ctx.deployment, ctx.run)
+        channels = scene.channels() if scene is not None else []
+        server = live_server(parse_address(address), ctx.deployment, ctx.run, scene=channels)
     except Exception:
         log.exception("the live view on %s is not served", address)
         return None
@@ -466,10 +500,11 @@ def _main(ctx: ServiceContext, live_address: str | None = None) -> int:
     os.nice(NICENESS)  # this thread and those it starts later; not the callback's, started
     # the live view's threads are started here, so they yield to the flight too; before the
     # token, so that it serves once the launcher sees the monitor
-    live = _open_live(ctx, live_address) if live_address else None
+    scene = open_scene(ctx.deployment)
+    live = _open_live(ctx, live_address, scene) if live_address else None
     ctx.ready()
     mon = Monitor(ctx)
-    mon.live = live
+    mon.live, mon.scene = live, scene
     status: Status | None = None
     completed = False
     try:

@@ -66,8 +66,8 @@ def add_monitor_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser
         nargs="?",
         const=LIVE_DEFAULT,
         metavar="HOST:PORT",
-        help=f"serve the messages to Foxglove instead of printing them (default {LIVE_DEFAULT}; "
-        "needs --run and foxglove-sdk; docs/live.md)",
+        help=f"serve the messages to Foxglove instead of printing them (default {LIVE_DEFAULT}, "
+        "or ws://HOST:PORT; needs --run and foxglove-sdk; docs/live.md)",
     )
     return p
 

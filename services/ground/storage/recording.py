@@ -8,13 +8,17 @@
     rejected/<topic>   payloads that do not decode: {"key", "reason", "error", "size",
                        "payload_b64", "truncated"}
     alive/<service>    liveliness changes {"service", "alive"} (a service came up or went away)
+    scene/...          the formation as a 3D scene in Foxglove's schemas, protobuf
+                       (``services.ground.monitoring.scene``; with foxglove-sdk installed)
 
 Every record's log_time is simulation time (ns from the mission's start: a message's own t, or
 the latest simulation time for a rejected payload or a liveliness change), so that a viewer's
 timeline spans the mission flown; publish_time is the monitor's receive wall time (ns since the
 epoch).  The metadata record ``ddvi`` names the run and says so (``TIMELINE``), and the
 deployment file is attached.
-``read_recording`` reads a file back, also one cut short (no footer) by a kill -9.
+``read_recording`` reads a file back (its JSON channels: what the bus carried), also one cut
+short (no footer) by a kill -9.  The scene is made from what the bus carried, so it is not
+counted among the messages recorded (``Recorder.scenes`` counts it).
 """
 
 from __future__ import annotations
@@ -185,6 +189,7 @@ class Recorder:
     def __init__(self, path: Path, metadata: dict[str, str], attachment: Path | None) -> None:
         self.path = path
         self.messages = 0  # handed to the writer
+        self.scenes = 0  # scene messages handed to the writer (not among ``messages``)
         self.not_recorded = 0  # messages after the recording stopped, or lost in its cut
         self.closed = False
         self.stopped: RecordingStop | None = None
@@ -273,18 +278,24 @@ class Recorder:
             how,
         )
 
-    def _schema_id(self, name: str, schema: dict[str, Any]) -> int:
+    def _schema_id(self, name: str, schema: dict[str, Any] | Any) -> int:
+        """The id of schema ``name``: a JSON schema (a dict), or a Foxglove schema (its
+        encoding and bytes as the SDK gives them)."""
         sid = self._schemas.get(name)
         if sid is None:
-            data = json.dumps(schema).encode()
-            sid = self._schemas[name] = self._writer.register_schema(name, "jsonschema", data)
+            if isinstance(schema, dict):
+                encoding, data = "jsonschema", json.dumps(schema).encode()
+            else:
+                encoding, data = schema.encoding, bytes(schema.data)
+            sid = self._schemas[name] = self._writer.register_schema(name, encoding, data)
         return sid
 
-    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any]) -> int:
+    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any] | Any) -> int:
         cid = self._channels.get((topic, schema_name))
         if cid is None:
             sid = self._schema_id(schema_name, schema)
-            cid = self._writer.register_channel(topic, "json", sid)
+            encoding = "json" if isinstance(schema, dict) else schema.encoding
+            cid = self._writer.register_channel(topic, encoding, sid)
             self._channels[(topic, schema_name)] = cid
         return cid
 
@@ -297,24 +308,52 @@ class Recorder:
         log_ns: int,
         pub_ns: int,
         seq: int = 0,
-    ) -> None:
+    ) -> bytes | None:
         """Write ``data`` as JSON on channel ``topic`` (registered with its schema on first
-        use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns."""
+        use); ``log_ns``: simulation time, ``pub_ns``: receive wall time, both ns.  The JSON
+        written (the live view serves the same bytes), or None once the recording stopped."""
         file = self._file  # its room changes only as it is written
         if self.stopped is None and file is not None and file.position != self._room_seen:
             self._keep_room()
         if self.stopped is not None:
             self.not_recorded += 1
-            return
+            return None
         payload = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)
+        self._append(topic, schema_name, schema, payload, log_ns, pub_ns, seq, bus=True)
+        return payload
+
+    def scene(self, topic: str, schema: Any, data: bytes, log_ns: int, recv_ns: int) -> None:
+        """Record a scene message (``services.ground.monitoring.scene``), encoded in its
+        Foxglove ``schema``'s encoding, made from what was received at wall time ``recv_ns``;
+        dropped, uncounted, once the recording stopped."""
+        if self.stopped is None and self._file is not None:
+            seq = self.scenes + 1
+            self._append(topic, schema.name, schema, data, log_ns, recv_ns, seq, bus=False)
+
+    def _append(
+        self,
+        topic: str,
+        schema_name: str,
+        schema: dict[str, Any] | Any,
+        payload: bytes,
+        log_ns: int,
+        pub_ns: int,
+        seq: int,
+        bus: bool,
+    ) -> None:
+        """Hand one record to the writer: a bus message (``bus``, counted in ``messages``) or
+        a scene message (``scenes``)."""
         assert self._file is not None
         chunks = self._file.chunks  # written in line, not through _guarded: once a message
         try:
             cid = self._channel(topic, schema_name, schema)
-            self.messages += 1
-            self._pending += 1
-            if log_ns > self._pending_ns:
-                self._pending_ns = log_ns
+            if bus:
+                self.messages += 1
+                self._pending += 1
+                if log_ns > self._pending_ns:
+                    self._pending_ns = log_ns
+            else:
+                self.scenes += 1
             self._writer.add_message(cid, log_ns, payload, pub_ns, seq & 0xFFFFFFFF)
         except OSError as exc:
             self._settle(chunks)
@@ -323,11 +362,12 @@ class Recorder:
         if self._file.chunks != chunks:
             self._settle(chunks)
 
-    def message(self, topic: str, msg: Message, recv_ns: int) -> None:
-        """Record a decoded bus message received at wall time ``recv_ns``."""
+    def message(self, topic: str, msg: Message, recv_ns: int) -> bytes | None:
+        """Record a decoded bus message received at wall time ``recv_ns``; its JSON (None once
+        the recording stopped)."""
         schema = _recorded_schema(msg.schema)
         data = message_record(msg)
-        self.write(topic, f"ddvi.{msg.schema}", schema, data, ns(msg.t), recv_ns, msg.seq)
+        return self.write(topic, f"ddvi.{msg.schema}", schema, data, ns(msg.t), recv_ns, msg.seq)
 
     def rejected(
         self, topic: str, key: str, payload: bytes, err: MessageError, recv_ns: int, t: float
@@ -400,7 +440,8 @@ class Recorded:
 
 
 def read_recording(path: str | Path) -> tuple[list[Recorded], bool]:
-    """Every message of a recording in file order, and whether the file was complete.
+    """Every message of a recording's JSON channels (the bus's messages, liveliness changes
+    and rejected payloads; not the scene) in file order, and whether the file was complete.
 
     A file cut short (the monitor killed with -9) has no footer: it is then read sequentially
     up to the last complete chunk.
@@ -408,6 +449,8 @@ def read_recording(path: str | Path) -> tuple[list[Recorded], bool]:
 
     def convert(items: Iterator[Any]) -> Iterator[Recorded]:
         for schema, channel, message in items:
+            if channel.message_encoding != "json":  # the scene, made from what is here
+                continue
             yield Recorded(
                 channel.topic,
                 schema.name if schema is not None else "",
