@@ -20,6 +20,7 @@ import zenoh
 from services.bus import BusSettings, open_session
 from services.config import deployment_from_table
 from services.ground.launch.credentials import hub_settings
+from services.ground.launch.launcher import free_port as find_free_port
 from services.interface import encode
 
 pytestmark = pytest.mark.integration
@@ -90,7 +91,7 @@ def _refused(r: subprocess.CompletedProcess[str], folder: Path) -> None:
 
 
 def test_a_folder_with_credentials_whose_bus_json_turns_security_off_is_refused(
-    tmp_path: Path, open_hub: tuple[str, list[str]], free_port: int
+    tmp_path: Path, open_hub: tuple[str, list[str]]
 ) -> None:
     hub, faults = open_hub
     folder = _tampered(tmp_path, hub)
@@ -99,7 +100,7 @@ def test_a_folder_with_credentials_whose_bus_json_turns_security_off_is_refused(
     # naming the hub does not get round it
     via_hub = _ddvi("fault", str(folder), "kill", "ctrl-lqr", "--hub", hub, "--timeout", "3")
     _refused(via_hub, folder)
-    live = f"127.0.0.1:{free_port + 1 if free_port < 65535 else free_port - 1}"
+    live = f"127.0.0.1:{find_free_port()}"  # another port than the hub's, free now
     _refused(_ddvi("monitor", "--run", str(folder), "--live", live, "--seconds", "1"), folder)
     assert faults == []
     # said explicitly, it connects without authentication, and hears what that hub says
