@@ -117,11 +117,11 @@ NEEDS = {
 """The modules the live benchmark needs beyond a plain installation: the test extra's."""
 
 
-def missing() -> str | None:
-    """Why the live benchmark cannot run here (what is not installed, and how to install it),
-    or None."""
+def missing(needs: dict[str, str] = NEEDS) -> str | None:
+    """Why a benchmark needing ``needs`` (module -> what it is; by default the live
+    benchmark's) cannot run here (what is not installed, and how to install it), or None."""
     absent = []
-    for module, what in NEEDS.items():
+    for module, what in needs.items():
         try:
             importlib.import_module(module)
         except ImportError:

@@ -25,7 +25,6 @@ from its start (imports included) to its end.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import resource
@@ -43,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.live import missing as packages_missing
 from benchmarks.mission import _row, skipped_row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
@@ -68,16 +68,7 @@ time, a navigation sample every 33 ms."""
 
 def missing() -> str | None:
     """Why the ROS 2 benchmark cannot run here (what is not installed), or None."""
-    absent = []
-    for module, what in NEEDS.items():
-        try:
-            importlib.import_module(module)
-        except ImportError:
-            absent.append(what)
-    if not absent:
-        return None
-    verb = "is" if len(absent) == 1 else "are"
-    return f"{' and '.join(absent)} {verb} not installed (pip install -e '.[test]')"
+    return packages_missing(NEEDS)
 
 
 def _children_cpu() -> float:
