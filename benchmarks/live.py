@@ -222,6 +222,18 @@ def _rows(
     return rows
 
 
+def print_rows(rows: list[dict[str, Any]], as_json: bool) -> None:
+    """A benchmark's rows on stdout: as JSON, or one line each with its ratio and target."""
+    if as_json:
+        print(json.dumps(rows))
+        return
+    for r in rows:
+        print(
+            f"{r['metric']}: {r['project']:.4g} {r['unit']} against {r['baseline']:.4g} "
+            f"({r['baseline_name']}), ratio {r['cost_ratio']:.3f} {r['target']}"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.live", description=__doc__)
     parser.add_argument("--quick", action="store_true", help="4 orbits, one run each")
@@ -231,14 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     rows = bench_live(args.quick, args.rounds)
-    if args.json:
-        print(json.dumps(rows))
-    else:
-        for r in rows:
-            print(
-                f"{r['metric']}: {r['project']:.4g} {r['unit']} against {r['baseline']:.4g} "
-                f"({r['baseline_name']}), ratio {r['cost_ratio']:.3f} {r['target']}"
-            )
+    print_rows(rows, args.json)
     return 0
 
 

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.live import missing as packages_missing
+from benchmarks.live import print_rows
 from benchmarks.mission import _row, skipped_row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
@@ -412,14 +413,7 @@ def main(argv: list[str] | None = None) -> int:
         port, definitions, *deployment = args.ros_side
         return serve_ros_side(int(port), definitions, deployment[0] if deployment else None)
     rows = bench_ros2(args.quick)
-    if args.json:
-        print(json.dumps(rows))
-    else:
-        for r in rows:
-            print(
-                f"{r['metric']}: {r['project']:.4g} {r['unit']} against {r['baseline']:.4g} "
-                f"({r['baseline_name']}), ratio {r['cost_ratio']:.3f} {r['target']}"
-            )
+    print_rows(rows, args.json)
     return 0
 
 
