@@ -111,6 +111,13 @@ def _lines(stream: Any, out: queue.SimpleQueue[str]) -> None:
         out.put(line)
 
 
+def _drained(lines: queue.SimpleQueue[str]) -> list[str]:
+    out = []
+    while not lines.empty():
+        out.append(lines.get())
+    return out
+
+
 @pytest.mark.integration
 def test_the_first_step_waits_for_a_client_as_long_as_it_takes(tmp_path: Path) -> None:
     path = tmp_path / "short.toml"
@@ -122,8 +129,16 @@ def test_the_first_step_waits_for_a_client_as_long_as_it_takes(tmp_path: Path) -
     cmd += ["--live", f"ws://127.0.0.1:{port}", "--wait-for-client", "--rate", "4000"]
     run = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     said: queue.SimpleQueue[str] = queue.SimpleQueue()
-    assert run.stderr is not None
-    threading.Thread(target=_lines, args=(run.stderr, said), daemon=True).start()
+    printed: queue.SimpleQueue[str] = queue.SimpleQueue()
+    assert run.stderr is not None and run.stdout is not None
+    # one reader per stream, and nothing else reads them: communicate() would take lines from
+    # under the readers
+    readers = [
+        threading.Thread(target=_lines, args=(run.stderr, said), daemon=True),
+        threading.Thread(target=_lines, args=(run.stdout, printed), daemon=True),
+    ]
+    for reader in readers:
+        reader.start()
     try:
         seen = []
         while not any("waiting for a client of" in line for line in seen):
@@ -133,21 +148,20 @@ def test_the_first_step_waits_for_a_client_as_long_as_it_takes(tmp_path: Path) -
         assert run.poll() is None  # nobody gave up
         joined = time.time_ns()
         client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=10)
-        out, _ = run.communicate(timeout=300)
-        assert run.returncode == 0
+        assert run.wait(timeout=300) == 0
         assert client.wait_closed(30)
     finally:
         if run.poll() is None:
             run.kill()
             run.wait()
-    rest = []
-    while not said.empty():
-        rest.append(said.get())
+    for reader in readers:
+        reader.join(timeout=30)  # until each stream's end: every line is in its queue
+    rest = _drained(said)
     assert any("a client is watching: the mission flies" in line for line in rest), rest
     # the client saw the mission from its first step on, and nothing flew before it came
     clocks = [m.json()["t"] for m in client.messages if m.topic == "clock"]
     assert clocks[0] == 0.0 and clocks[-1] == 8100.0
-    folder = Path(out.strip().splitlines()[-1])
+    folder = Path(_drained(printed)[-1].strip())
     records, _ = read_recording(folder / "recording.mcap")
     first_clock = min(r.publish_time for r in records if r.topic == "clock")
     assert first_clock > joined
