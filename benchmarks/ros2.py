@@ -14,7 +14,9 @@ environment, which acts on the command, receives it as the monitor does.
 The cost: the default mission (``--quick``: 4 orbits) with ``--ros2`` and one subscriber of
 every ROS 2 topic (a process of its own: a Zenoh router on the ROS 2 endpoint, what a user's
 ``rmw_zenohd`` is, and a zenoh-ros2-sdk subscription to each topic the gateway publishes)
-against the same mission without ``--ros2``, alternated (three pairs with ``--quick``, five
+against the same mission without ``--ros2``, and with ``--ros2`` and the router but no
+subscriber (the gateway then receives every bus message it would carry and converts and puts
+none: the floor under carrying them), in alternated rounds (three with ``--quick``, five
 otherwise).  The wall time of ``ddvi run``, the CPU of its processes (launcher, router,
 services, the gateway among them) and the CPU of every process: those and the ROS 2 side's,
 from its start (imports included) to its end.
@@ -300,16 +302,25 @@ def delay_rows(
     return rows
 
 
-def cost_run(path: Path, folder: Path, ros2: bool) -> dict[str, Any]:
-    """``ddvi run path`` with ``--ros2`` and the subscriber of every topic, or without: the
-    run's wall time and CPU, the CPU of every process (the run's and the ROS 2 side's, from its
-    start to its end) and the messages the subscriber received."""
-    if not ros2:
+WITH = "with"
+"""A cost run with ``--ros2`` and the subscriber of every topic."""
+UNREAD = "unread"
+"""A cost run with ``--ros2`` and its ROS 2 side's router, no subscriber: the gateway receives
+every message it would carry and converts and puts none (what it costs when no ROS 2 tool
+listens, and the floor under carrying them: the bus side alone)."""
+WITHOUT = "without"
+
+
+def cost_run(path: Path, folder: Path, variant: str) -> dict[str, Any]:
+    """``ddvi run path`` as ``variant`` has it (``WITH``, ``UNREAD`` or ``WITHOUT`` --ros2):
+    the run's wall time and CPU, the CPU of every process (the run's and the ROS 2 side's,
+    from its start to its end) and the messages the subscriber received."""
+    if variant == WITHOUT:
         wall, cpu, out = _ddvi_run(path, folder / "runs", [])
         return {"wall_s": wall, "run_cpu_s": cpu, "cpu_s": cpu, "received": 0, "out": out}
     port = free_port()
     cpu0 = _children_cpu()
-    with ros_side(port, folder, path) as side:
+    with ros_side(port, folder, path if variant == WITH else None) as side:
         wall, run_cpu, out = _ddvi_run(path, folder / "runs", ["--ros2", f"tcp/127.0.0.1:{port}"])
     cpu = _children_cpu() - cpu0
     counts = json.loads(side.stdout.read() if side.stdout is not None else "{}")
@@ -324,34 +335,48 @@ COST_FIGURES = {
 }
 
 
-def cost_rows(
-    orbits: float, with_ros2: list[dict[str, Any]], without: list[dict[str, Any]]
-) -> list[dict[str, Any]]:
-    """The mean of each cost figure with ``--ros2`` against without, each run's figure said;
-    the messages the subscriber received against those the run recorded."""
-    rows = []
-    for key, figure in COST_FIGURES.items():
-        project = statistics.mean(r[key] for r in with_ros2)
-        baseline = statistics.mean(r[key] for r in without)
-        each = (
-            ", ".join(f"{r[key]:.1f}" for r in with_ros2)
-            + " against "
-            + ", ".join(f"{r[key]:.1f}" for r in without)
+def _cost_row(
+    orbits: float, key: str, what: str, runs: list[dict[str, Any]], without: list[dict[str, Any]]
+) -> dict[str, Any]:
+    project = statistics.mean(r[key] for r in runs)
+    baseline = statistics.mean(r[key] for r in without)
+    each = (
+        ", ".join(f"{r[key]:.1f}" for r in runs)
+        + " against "
+        + ", ".join(f"{r[key]:.1f}" for r in without)
+    )
+    return _row(
+        f"{orbits:g}-orbit mission, {COST_FIGURES[key]}, {what} (runs: {each})",
+        "s",
+        project,
+        baseline,
+        "without --ros2",
+        project / baseline,
+        TARGET,
+        bench="ros2",
+    )
+
+
+def cost_rows(orbits: float, runs: dict[str, list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    """The mean of each cost figure with ``--ros2`` and the subscriber against without, each
+    run's figure said; the wall time and the run's CPU with ``--ros2`` and no subscriber (the
+    floor: every message received, none carried); the messages the subscriber received against
+    those the run recorded."""
+    rows = [
+        _cost_row(orbits, key, "--ros2 and a subscriber of every topic", runs[WITH], runs[WITHOUT])
+        for key in COST_FIGURES
+    ]
+    rows += [
+        _cost_row(
+            orbits,
+            key,
+            "--ros2 and no subscriber (the floor: every message received, none converted)",
+            runs[UNREAD],
+            runs[WITHOUT],
         )
-        rows.append(
-            _row(
-                f"{orbits:g}-orbit mission, {figure}, --ros2 and a subscriber of every topic "
-                f"(runs: {each})",
-                "s",
-                project,
-                baseline,
-                "without --ros2",
-                project / baseline,
-                TARGET,
-                bench="ros2",
-            )
-        )
-    last = with_ros2[-1]
+        for key in ("wall_s", "run_cpu_s")
+    ]
+    last = runs[WITH][-1]
     recorded = json.loads((last["out"] / "summary.json").read_text())["messages"]["recorded"]
     rows.append(
         _row(
@@ -376,7 +401,8 @@ def bench_ros2(
 ) -> list[dict[str, Any]]:
     """The bridge's delay in lock-step and real time (runs of ``delay_orbits``: 1 with
     ``quick``, else 4), and its cost to the default mission (``cost_orbits``: 4 with
-    ``quick``, else the mission's own; ``pairs`` of alternated runs: 3 with ``quick``, else 5);
+    ``quick``, else the mission's own; ``pairs``: alternated rounds of its three runs, 3 with
+    ``quick``, else 5);
     a skipped row when zenoh-ros2-sdk or rosbags is not installed."""
     if (why := missing()) is not None:
         return [skipped_row("ros2", why)]
@@ -391,19 +417,20 @@ def bench_ros2(
         if cost_orbits is not None or quick:
             table["run"]["orbits"] = cost_orbits or 4.0
         path = write_deployment(table, Path(tmp), "mission")
-        runs: dict[bool, list[dict[str, Any]]] = {True: [], False: []}
+        runs: dict[str, list[dict[str, Any]]] = {WITHOUT: [], WITH: [], UNREAD: []}
         for k in range(pairs or (3 if quick else 5)):
-            for ros2 in (False, True) if k % 2 == 0 else (True, False):
-                folder = Path(tmp) / f"cost-{k}-{ros2}"
+            order = list(runs) if k % 2 == 0 else list(reversed(runs))
+            for variant in order:
+                folder = Path(tmp) / f"cost-{k}-{variant}"
                 folder.mkdir()
-                runs[ros2].append(cost_run(path, folder, ros2))
-        rows += cost_rows(table["run"]["orbits"], runs[True], runs[False])
+                runs[variant].append(cost_run(path, folder, variant))
+        rows += cost_rows(table["run"]["orbits"], runs)
     return rows
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.ros2", description=__doc__)
-    parser.add_argument("--quick", action="store_true", help="short runs, three pairs")
+    parser.add_argument("--quick", action="store_true", help="short runs, three rounds")
     parser.add_argument("--json", action="store_true", help="the rows as JSON on stdout")
     parser.add_argument(
         "--ros-side", nargs="+", metavar="ARG", help=argparse.SUPPRESS

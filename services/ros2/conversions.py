@@ -20,11 +20,11 @@ reads the same clock from ``/clock``.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -78,6 +78,7 @@ _NS_PER_S = 1_000_000_000
 _INT32_MAX = 2**31 - 1
 
 
+@functools.cache
 def _msg(ros_type: str) -> type:
     return message_class(ros_type)
 
@@ -86,7 +87,7 @@ def _vector(value: ArrayLike, shape: tuple[int, ...], what: str) -> FloatArray:
     array = np.asarray(value, dtype=np.float64)
     if array.shape != shape:
         raise ValueError(f"{what}: expected shape {shape}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
+    if not np.isfinite(array).all():
         raise ValueError(f"{what}: expected finite values, got {array}")
     return array
 
@@ -120,7 +121,13 @@ def time_from_seconds(t: float) -> tuple[int, int]:
         raise ValueError(f"simulation time: expected a finite number of seconds, got {t!r}")
     if t < 0:
         raise ValueError(f"simulation time: expected t >= 0 s, got {t!r}")
-    sec, nanosec = divmod(round(Fraction(float(t)) * _NS_PER_S), _NS_PER_S)
+    # t = n / d exactly (d a power of two); n 10^9 / d rounded half to even, in integers
+    n, d = float(t).as_integer_ratio()
+    ns, twice_rest = divmod(n * _NS_PER_S, d)
+    twice_rest *= 2
+    if twice_rest > d or (twice_rest == d and ns % 2):
+        ns += 1
+    sec, nanosec = divmod(ns, _NS_PER_S)
     if sec > _INT32_MAX:
         raise ValueError(f"simulation time: {t!r} s does not fit builtin_interfaces/Time (int32)")
     return int(sec), int(nanosec)
@@ -128,7 +135,7 @@ def time_from_seconds(t: float) -> tuple[int, int]:
 
 def seconds_from_time(sec: int, nanosec: int) -> float:
     """The time (s) of a ``builtin_interfaces/Time``: the float nearest sec + nanosec / 10^9."""
-    return float(Fraction(sec * _NS_PER_S + nanosec, _NS_PER_S))
+    return (sec * _NS_PER_S + nanosec) / _NS_PER_S  # integer division is correctly rounded
 
 
 def time_message(t: float) -> Any:
@@ -159,7 +166,10 @@ def mrp_to_quaternion(sigma: ArrayLike) -> FloatArray:
     """
     s = _vector(sigma, (3,), "sigma")
     s2 = float(s @ s)
-    q = np.append(2.0 * s, 1.0 - s2) / (1.0 + s2)
+    q = np.empty(4)
+    q[:3] = 2.0 * s
+    q[3] = 1.0 - s2
+    q /= 1.0 + s2
     return -q if q[3] < 0.0 else q
 
 
@@ -177,7 +187,7 @@ def quaternion_to_mrp(q: ArrayLike) -> FloatArray:
 
 
 def _quaternion_message(sigma: ArrayLike) -> Any:
-    x, y, z, w = (float(c) for c in mrp_to_quaternion(sigma))
+    x, y, z, w = mrp_to_quaternion(sigma).tolist()
     return _msg("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w)
 
 
@@ -209,11 +219,13 @@ def attitude_command_mrp(message: Any) -> FloatArray:
 
 
 def _point(xyz: FloatArray) -> Any:
-    return _msg("geometry_msgs/msg/Point")(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
+    x, y, z = xyz.tolist()
+    return _msg("geometry_msgs/msg/Point")(x=x, y=y, z=z)
 
 
 def _vector3(xyz: FloatArray) -> Any:
-    return _msg("geometry_msgs/msg/Vector3")(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
+    x, y, z = xyz.tolist()
+    return _msg("geometry_msgs/msg/Vector3")(x=x, y=y, z=z)
 
 
 def _xyz(v: Any) -> FloatArray:
@@ -248,18 +260,25 @@ def odometry_message(
     block rotated into the body ([BH] P_vv [BH]^T); the rotational blocks are zero.
     """
     state = _vector(hill_state, (6,), "hill_state")
-    s = np.zeros(3) if sigma is None else _vector(sigma, (3,), "sigma")
-    BH = mrp_to_dcm(s)
-    P = np.zeros((6, 6)) if covariance is None else _vector(covariance, (6, 6), "covariance")
     pose_cov = np.zeros((6, 6))
-    pose_cov[:3, :3] = P[:3, :3]
     twist_cov = np.zeros((6, 6))
-    twist_cov[:3, :3] = BH @ P[3:, 3:] @ BH.T
-    pose = _msg("geometry_msgs/msg/Pose")(
-        position=_point(state[:3]), orientation=_quaternion_message(s)
-    )
+    if covariance is not None:
+        P = _vector(covariance, (6, 6), "covariance")
+        pose_cov[:3, :3] = P[:3, :3]
+        twist_cov[:3, :3] = P[3:, 3:]
+    linear = state[3:]
+    if sigma is None:  # the body axes along the Hill axes: nothing to rotate
+        orientation = _msg("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0)
+    else:
+        s = _vector(sigma, (3,), "sigma")
+        BH = mrp_to_dcm(s)
+        linear = BH @ linear
+        twist_cov[:3, :3] = BH @ twist_cov[:3, :3] @ BH.T
+        orientation = _quaternion_message(s)
+    vector3 = _msg("geometry_msgs/msg/Vector3")
+    pose = _msg("geometry_msgs/msg/Pose")(position=_point(state[:3]), orientation=orientation)
     twist = _msg("geometry_msgs/msg/Twist")(
-        linear=_vector3(BH @ state[3:]), angular=_vector3(np.zeros(3))
+        linear=_vector3(linear), angular=vector3(x=0.0, y=0.0, z=0.0)
     )
     return _msg(ODOMETRY)(
         header=_header(t, CHIEF_HILL_FRAME),
@@ -350,7 +369,7 @@ def gains_message(K: ArrayLike, labels: tuple[str, str] = ("input", "state")) ->
     controller's units), row-major as std_msgs/MultiArrayLayout specifies: dim[0] ``labels[0]``
     (size m, stride m n), dim[1] ``labels[1]`` (size n, stride n), data_offset 0."""
     gains = np.asarray(K, dtype=np.float64)
-    if gains.ndim != 2 or 0 in gains.shape or not np.all(np.isfinite(gains)):
+    if gains.ndim != 2 or 0 in gains.shape or not np.isfinite(gains).all():
         raise ValueError(f"gains: expected a finite (m, n) matrix, got shape {gains.shape}")
     m, n = gains.shape
     dim = _msg("std_msgs/msg/MultiArrayDimension")

@@ -76,18 +76,24 @@ EXPOSED_TYPES: tuple[str, ...] = (
 
 _TYPE_NAME = re.compile(r"([A-Za-z][A-Za-z0-9_]*)/(msg|srv|action)/([A-Za-z][A-Za-z0-9_]*)")
 
+_CHECKED: set[str] = set()
+"""The type names ``_known`` has found in the store."""
+
 _SECTION = "=" * 80 + "\n"
 """What separates one type's definition from the next in a ``generate_msgdef`` text."""
 
 
 def _known(ros_type: str) -> str:
     """``ros_type`` if the Jazzy store has it; ValueError naming what is wrong otherwise."""
+    if isinstance(ros_type, str) and ros_type in _CHECKED:  # every message carried comes here
+        return ros_type
     if not isinstance(ros_type, str) or not _TYPE_NAME.fullmatch(ros_type):
         raise ValueError(
             f"expected a ROS type name '<package>/msg/<Name>' (e.g. {ODOMETRY!r}), got {ros_type!r}"
         )
     if ros_type not in TYPESTORE.types:
         raise ValueError(f"{ros_type!r} is not a ROS 2 Jazzy type known to rosbags")
+    _CHECKED.add(ros_type)
     return ros_type
 
 

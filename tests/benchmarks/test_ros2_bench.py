@@ -42,13 +42,16 @@ def test_the_ros2_benchmark_gives_the_delay_per_step_and_the_cost_rows() -> None
         assert all(math.isfinite(r["cost_ratio"]) for r in group)
     assert "commands late" in delays[3]["metric"]
     costs = [r for r in rows if r["unit"] == "s"]
-    assert len(costs) == 3
+    assert len(costs) == 5
     assert all(r["baseline_name"] == "without --ros2" and r["target"] == ros2.TARGET for r in costs)
     assert all("0.5-orbit mission" in r["metric"] and "(runs: " in r["metric"] for r in costs)
     assert all(r["project"] > 0 and r["baseline"] > 0 for r in costs)
     run_cpu, every_cpu = costs[1], costs[2]
     assert every_cpu["project"] >= run_cpu["project"]  # the ROS 2 side's CPU on top
     assert every_cpu["baseline"] == run_cpu["baseline"]  # nothing but the run without
+    floor_wall, floor_cpu = costs[3], costs[4]
+    assert all("--ros2 and no subscriber" in r["metric"] for r in (floor_wall, floor_cpu))
+    assert floor_cpu["baseline"] == run_cpu["baseline"]  # against the same runs without
     (received,) = [r for r in rows if r["unit"] == "count"]
     assert received["metric"] == "ROS 2 messages the subscriber received"
     assert received["project"] > 100 and received["baseline"] > 100

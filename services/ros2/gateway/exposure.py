@@ -219,21 +219,24 @@ class Translator:
 
     def _true_sample(self, t: float, sample: dict[Any, Any]) -> list[Out]:
         chief, _ = sample["chief"]
+        frames = self.tf and self.wanted("/tf")
+        shown = [sc for sc in self.deputies if frames or self.wanted(self.names[sc]["truth"])]
+        if not shown:
+            return []
         HcN = hill_frame(chief[:3], chief[3:])  # the chief's Hill frame: chief_hill
+        states = np.array([sample[sc][0] for sc in shown])
+        # every deputy's attitudes in chief_hill at once: its body's, and its own Hill frame's
+        bodies = mrp_to_dcm(np.array([sample[sc][1] for sc in shown])) @ HcN.T
+        own_hills = hill_frame(states[:, :3], states[:, 3:]) @ HcN.T
+        attitudes = dcm_to_mrp(np.concatenate([bodies, own_hills]))
         out: list[Out] = []
         transforms = []
-        frames = self.tf and self.wanted("/tf")
-        for sc, deputy in self.deputies.items():
-            topic = self.names[sc]["truth"]
-            if not (frames or self.wanted(topic)):
-                continue
-            state, sigma_BN = sample[sc]
-            relative = navigation_state(self.dep, deputy, chief, state)
-            sigma = dcm_to_mrp(mrp_to_dcm(sigma_BN) @ HcN.T)  # body in chief_hill
-            if self.wanted(topic):
+        for k, sc in enumerate(shown):
+            relative = navigation_state(self.dep, self.deputies[sc], chief, states[k])
+            sigma, own_hill = attitudes[k], attitudes[len(shown) + k]
+            if self.wanted(topic := self.names[sc]["truth"]):
                 out.append((topic, cv.odometry_message(t, sc, relative, sigma=sigma)))
             if frames:
-                own_hill = dcm_to_mrp(hill_frame(state[:3], state[3:]) @ HcN.T)
                 transforms.append(cv.hill_transform(t, sc, relative, sigma))
                 transforms.append(
                     cv.transform(t, cv.CHIEF_HILL_FRAME, cv.hill_frame(sc), relative[:3], own_hill)

@@ -91,19 +91,26 @@ class Health:
         """Every service's status now."""
         return [self._status(name, entry) for name, entry in self.services.items()]
 
-    def _status(self, name: str, entry: _Service) -> Status:
+    def headlines(self) -> tuple[tuple[Level, str], ...]:
+        """Every service's level and message now (its status without the values)."""
+        return tuple(self._headline(entry) for entry in self.services.values())
+
+    def _headline(self, entry: _Service) -> tuple[Level, str]:
         level, text = entry.log
+        if not entry.alive and self.final and entry.seen:
+            return Level.OK, "finished"
+        if not entry.alive:
+            return Level.STALE, (
+                "not alive (its liveliness token is gone)" if entry.seen else "not alive yet"
+            )
+        if level in _LOG_LEVELS:
+            return _LOG_LEVELS[level], text
+        if entry.status:
+            return Level.OK, f"{entry.status['mode']}, {entry.status['phase']}"
+        return Level.OK, "up"
+
+    def _status(self, name: str, entry: _Service) -> Status:
         values = [(k, str(v)) for k, v in entry.status.items()]
         values += [(k, str(v)) for k, v in sorted(entry.counters.items())]
-        if not entry.alive and self.final and entry.seen:
-            level_, message = Level.OK, "finished"
-        elif not entry.alive:
-            level_ = Level.STALE
-            message = "not alive (its liveliness token is gone)" if entry.seen else "not alive yet"
-        elif level in _LOG_LEVELS:
-            level_, message = _LOG_LEVELS[level], text
-        elif entry.status:
-            level_, message = Level.OK, f"{entry.status['mode']}, {entry.status['phase']}"
-        else:
-            level_, message = Level.OK, "up"
-        return Status(f"ddvi/{name}", level_, message, _deputy_of(name), tuple(values))
+        level, message = self._headline(entry)
+        return Status(f"ddvi/{name}", level, message, _deputy_of(name), tuple(values))

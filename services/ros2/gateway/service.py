@@ -25,7 +25,9 @@ deputy's final navigation sample is carried, or ``END_GRACE`` after the final cl
 
 from __future__ import annotations
 
+import math
 import sys
+import time
 from typing import Any
 
 from services.bus import worth_saying
@@ -53,6 +55,9 @@ from services.ros2.gateway.ros_side import RosNode, RosSideError, ros_node
 SIDE_FAILED = 2
 """The gateway's exit status when its ROS 2 side cannot be opened (the endpoint is bad input)."""
 HEALTH_SCHEMAS = ("stats", "status", "log")
+DIAGNOSTICS_PERIOD = 1.0
+"""Wall seconds between two /diagnostics whose levels and messages are unchanged (only counters
+moved): diagnostic_updater's default rate.  A changed level or message goes out at once."""
 
 
 def main(ctx: ServiceContext) -> int:
@@ -89,7 +94,8 @@ def bus_inputs(kinds: set[str]) -> tuple[Listen | Watch, ...]:
 class GatewayService:
     """The gateway as a reactive component of the service host: each bus message translated
     (``Translator``) and published on the ROS 2 side, the services' health kept (``Health``)
-    and published on /diagnostics when it changes.
+    and published on /diagnostics when a service's level or message changes (counters alone:
+    at most once a ``DIAGNOSTICS_PERIOD``).
 
     Parameters
     ----------
@@ -109,6 +115,8 @@ class GatewayService:
         self.publishers = {t.name: node.publisher(t.name, t.ros_type, t.qos) for t in topics}
         self.inputs = bus_inputs({t.kind for t in topics})
         self.health = Health(dep.services)
+        self.diagnosed: tuple[Any, ...] = ()  # the levels and messages last on /diagnostics
+        self.diagnosed_at = -math.inf  # and when (monotonic wall seconds)
         self.flight = {s for s in dep.services if s not in ("monitor", ROS2_GATEWAY)}
         self.alive: set[str] = set()
         # each deputy's newest navigation sample carried, when it carries them: a service's
@@ -158,7 +166,7 @@ class GatewayService:
         if msg.schema == "nav" and msg.body["sc"] in self.navigated:
             self.navigated[msg.body["sc"]] = max(self.navigated[msg.body["sc"]], msg.t)
         if msg.schema in HEALTH_SCHEMAS:
-            if self.health.take(msg):
+            if self.health.take(msg) and self.diagnosis_due():
                 self.publish_health(msg.t)
             return
         try:
@@ -210,12 +218,20 @@ class GatewayService:
         self.counters["published"] += 1
         self.counters[f"published.{topic}"] += 1
 
+    def diagnosis_due(self) -> bool:
+        """Whether /diagnostics should go out: a service's level or message has changed, or
+        ``DIAGNOSTICS_PERIOD`` has passed."""
+        if time.monotonic() - self.diagnosed_at >= DIAGNOSTICS_PERIOD:
+            return True
+        return self.health.headlines() != self.diagnosed
+
     def publish_health(self, t: float | None = None) -> None:
         """/diagnostics now, if anyone reads it."""
         if not self.wanted(DIAGNOSTICS_TOPIC):
             return
         self.health.own(ROS2_GATEWAY, {**self.ctx.bus.counters, **self.stats()})
         stamp = max(self.t, t or 0.0)
+        self.diagnosed, self.diagnosed_at = self.health.headlines(), time.monotonic()
         self.publish(DIAGNOSTICS_TOPIC, diagnostic_array(stamp, self.health.statuses()))
 
     def refuse(self, topic: str, msg: Message, exc: Exception) -> None:
