@@ -1,0 +1,137 @@
+"""The live view's floor: foxglove-sdk's WebSocket server alone, in a process of its own, serving
+a run's recorded messages (every channel of its recording: the bus's JSON messages and the
+scene) to one client subscribed to every channel, one ``Channel.log`` a message, with the
+server's backlog the monitor's.  No bus, no decoding, no recording: what serving those messages
+costs whatever serves them.  Its CPU (every thread of the serving process, the SDK's WebSocket
+workers among them, from the first message logged to two seconds after the last) is the floor
+under the live view's cost to a run.
+
+    python -m benchmarks.live_floor RECORDING    # its CPU and the messages the client got
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.foxglove_client import FoxgloveClient
+from services.ground.launch.launcher import free_port
+from services.ground.monitoring.live import BACKLOG
+
+DRAIN_S = 2.0
+"""Seconds the server is given after its last message to send what its queues hold."""
+
+
+def _cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)  # every thread of this process
+    return usage.ru_utime + usage.ru_stime
+
+
+def _recorded(path: Path) -> tuple[list[tuple[str, str, str, bytes, str]], list[Any]]:
+    """Every channel of a recording (topic, schema name, schema encoding, schema bytes,
+    message encoding), and its messages as (channel index, data, log_time), in file order."""
+    from mcap.reader import make_reader
+
+    channels: dict[int, int] = {}
+    described: list[tuple[str, str, str, bytes, str]] = []
+    messages = []
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                channels[channel.id] = len(described)
+                described.append(
+                    (
+                        channel.topic,
+                        schema.name if schema is not None else "",
+                        schema.encoding if schema is not None else "",
+                        schema.data if schema is not None else b"",
+                        channel.message_encoding,
+                    )
+                )
+            messages.append((channels[channel.id], message.data, message.log_time))
+    return described, messages
+
+
+def serve(port: int, recording: Path) -> int:
+    """The serving process: advertise the recording's channels on 127.0.0.1:``port``, say
+    ``ready``, wait for a client to subscribe to every channel, serve every message, and print
+    the CPU it took as JSON."""
+    import foxglove
+
+    described, messages = _recorded(recording)
+    context = foxglove.Context()
+    channels = [
+        foxglove.Channel(
+            topic,
+            schema=foxglove.Schema(name=name, encoding=encoding, data=data) if name else None,
+            message_encoding=message_encoding,
+            context=context,
+        )
+        for topic, name, encoding, data, message_encoding in described
+    ]
+    server = foxglove.start_server(
+        name="ddvi live floor",
+        host="127.0.0.1",
+        port=port,
+        context=context,
+        message_backlog_size=BACKLOG,
+    )
+    try:
+        print("ready", flush=True)
+        deadline = time.monotonic() + 120
+        while not all(c.has_sinks() for c in channels):
+            if time.monotonic() > deadline:
+                raise RuntimeError("no client subscribed to every channel in 120 s")
+            time.sleep(0.05)
+        cpu0 = _cpu()
+        for index, data, log_time in messages:
+            channels[index].log(data, log_time=log_time)
+        time.sleep(DRAIN_S)
+        cpu = _cpu() - cpu0
+    finally:
+        server.stop()
+    print(json.dumps({"cpu_s": cpu, "served": len(messages)}), flush=True)
+    return 0
+
+
+def measure_floor(recording: Path) -> dict[str, Any]:
+    """The floor of ``recording``: the serving process's CPU (s), the messages it served and
+    those the client (this process, every channel) received."""
+    port = free_port()
+    cmd = [sys.executable, "-m", "benchmarks.live_floor", "--serve", str(port), str(recording)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        if proc.stdout.readline().strip() != "ready":
+            raise RuntimeError(f"the floor's server did not start ({proc.wait(timeout=30)})")
+        client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=60, keep=False)
+        out, _ = proc.communicate(timeout=600)
+        client.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    if proc.returncode != 0:
+        raise RuntimeError(f"the floor's server failed ({proc.returncode})")
+    result = json.loads(out.strip().splitlines()[-1])
+    return {**result, "received": sum(client.counts.values())}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["--serve"] and len(args) == 3:
+        return serve(int(args[1]), Path(args[2]))
+    if len(args) != 1:
+        print(__doc__.strip().splitlines()[-1].strip(), file=sys.stderr)
+        return 2
+    print(json.dumps(measure_floor(Path(args[0]))))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,45 @@
+"""The live view's floor: foxglove-sdk's server alone serves every message of a recording to a
+client of every channel, and says what it took."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("foxglove")
+pytest.importorskip("websockets")
+
+from mcap.writer import Writer
+
+from benchmarks.live_floor import measure_floor
+
+
+def _recording(path: Path, messages: int) -> None:
+    """A recording of two JSON channels, ``messages`` messages each."""
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = json.dumps({"type": "object"}).encode()
+        channels = []
+        for n, topic in enumerate(("clock", "nav/lqr/state")):
+            schema_id = writer.register_schema(f"ddvi.s{n}", "jsonschema", schema)
+            channels.append(writer.register_channel(topic, "json", schema_id))
+        for k in range(messages):
+            for channel_id in channels:
+                data = json.dumps({"t": 10.0 * k, "body": {"k": k}}).encode()
+                writer.add_message(channel_id, log_time=k, publish_time=k, data=data)
+        writer.finish()
+
+
+@pytest.mark.integration
+def test_the_floor_serves_every_recorded_message_to_a_client_and_says_its_cpu(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "recording.mcap"
+    _recording(path, 500)
+    floor = measure_floor(path)
+    assert floor["served"] == 1000
+    assert floor["received"] == 1000  # fewer than the backlog: nothing dropped
+    assert floor["cpu_s"] > 0
