@@ -1,10 +1,11 @@
 """The live view's floor: foxglove-sdk's WebSocket server alone, in a process of its own, serving
 a run's recorded messages (every channel of its recording: the bus's JSON messages and the
-scene) to one client subscribed to every channel, one ``Channel.log`` a message, with the
-server's backlog the monitor's.  No bus, no decoding, no recording: what serving those messages
-costs whatever serves them.  Its CPU (every thread of the serving process, the SDK's WebSocket
-workers among them, from the first message logged to two seconds after the last) is the floor
-under the live view's cost to a run.
+scene) to one client subscribed to every channel, one ``Channel.log`` a message, at the pace
+the monitor received them (each message when its ``publish_time`` comes, counted from the
+first), with the server's backlog the monitor's.  No bus, no decoding, no recording: what
+serving those messages costs whatever serves them.  Its CPU (every thread of the serving
+process, the SDK's WebSocket workers among them, from the first message logged to two seconds
+after the last) is the floor under the live view's cost to a run.
 
     python -m benchmarks.live_floor RECORDING    # its CPU and the messages the client got
 """
@@ -25,6 +26,8 @@ from services.ground.monitoring.live import BACKLOG
 
 DRAIN_S = 2.0
 """Seconds the server is given after its last message to send what its queues hold."""
+AHEAD_S = 0.001
+"""A message due later than this is waited for; earlier ones go at once (no sleep each)."""
 
 
 def _cpu() -> float:
@@ -34,7 +37,8 @@ def _cpu() -> float:
 
 def _recorded(path: Path) -> tuple[list[tuple[str, str, str, bytes, str]], list[Any]]:
     """Every channel of a recording (topic, schema name, schema encoding, schema bytes,
-    message encoding), and its messages as (channel index, data, log_time), in file order."""
+    message encoding), and its messages as (channel index, data, log_time, publish_time), in
+    file order."""
     from mcap.reader import make_reader
 
     channels: dict[int, int] = {}
@@ -53,7 +57,9 @@ def _recorded(path: Path) -> tuple[list[tuple[str, str, str, bytes, str]], list[
                         channel.message_encoding,
                     )
                 )
-            messages.append((channels[channel.id], message.data, message.log_time))
+            messages.append(
+                (channels[channel.id], message.data, message.log_time, message.publish_time)
+            )
     return described, messages
 
 
@@ -89,7 +95,11 @@ def serve(port: int, recording: Path) -> int:
                 raise RuntimeError("no client subscribed to every channel in 120 s")
             time.sleep(0.05)
         cpu0 = _cpu()
-        for index, data, log_time in messages:
+        start, first = time.monotonic(), min(m[3] for m in messages)
+        for index, data, log_time, publish_time in messages:
+            wait = start + (publish_time - first) / 1e9 - time.monotonic()
+            if wait > AHEAD_S:
+                time.sleep(wait)
             channels[index].log(data, log_time=log_time)
         time.sleep(DRAIN_S)
         cpu = _cpu() - cpu0
