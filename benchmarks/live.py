@@ -188,34 +188,55 @@ def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str,
     return rows
 
 
+def alternated_row(
+    figure: str,
+    key: str,
+    runs: list[dict[str, Any]],
+    without: list[dict[str, Any]],
+    baseline_name: str,
+    target: str,
+    bench: str,
+) -> dict[str, Any]:
+    """The mean of the seconds ``key`` over ``runs`` against its mean over ``without`` (the
+    runs alternated with them), each run's figure said: ``<figure> (runs: a, b against c, d)``."""
+    project = statistics.mean(r[key] for r in runs)
+    baseline = statistics.mean(r[key] for r in without)
+    each = (
+        ", ".join(f"{r[key]:.1f}" for r in runs)
+        + " against "
+        + ", ".join(f"{r[key]:.1f}" for r in without)
+    )
+    return _row(
+        f"{figure} (runs: {each})",
+        "s",
+        project,
+        baseline,
+        baseline_name,
+        project / baseline,
+        target,
+        bench=bench,
+    )
+
+
 def _rows(
     orbits: float, what: str, live: list[dict[str, Any]], without: list[dict[str, Any]]
 ) -> list[dict[str, Any]]:
-    rows = []
-    for key, figure in (
-        ("wall_s", "whole run"),
-        ("loop_s", "lock-step loop"),
-        ("run_cpu_s", "CPU of the run's processes"),
-    ):
-        project = statistics.mean(r[key] for r in live)
-        baseline = statistics.mean(r[key] for r in without)
-        each = (
-            ", ".join(f"{r[key]:.1f}" for r in live)
-            + " against "
-            + ", ".join(f"{r[key]:.1f}" for r in without)
+    rows = [
+        alternated_row(
+            f"{orbits:g}-orbit mission, {figure}, --live, a client of {what}",
+            key,
+            live,
+            without,
+            "without --live",
+            TARGET,
+            "live",
         )
-        rows.append(
-            _row(
-                f"{orbits:g}-orbit mission, {figure}, --live, a client of {what} (runs: {each})",
-                "s",
-                project,
-                baseline,
-                "without --live",
-                project / baseline,
-                TARGET,
-                bench="live",
-            )
+        for key, figure in (
+            ("wall_s", "whole run"),
+            ("loop_s", "lock-step loop"),
+            ("run_cpu_s", "CPU of the run's processes"),
         )
+    ]
     client_cpu = statistics.mean(r["client_cpu_s"] for r in live)
     run_cpu = statistics.mean(r["run_cpu_s"] for r in without)
     rows.append(

@@ -31,7 +31,6 @@ import json
 import os
 import resource
 import signal
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -44,8 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.live import alternated_row, print_rows
 from benchmarks.live import missing as packages_missing
-from benchmarks.live import print_rows
 from benchmarks.mission import _row, skipped_row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
@@ -338,23 +337,8 @@ COST_FIGURES = {
 def _cost_row(
     orbits: float, key: str, what: str, runs: list[dict[str, Any]], without: list[dict[str, Any]]
 ) -> dict[str, Any]:
-    project = statistics.mean(r[key] for r in runs)
-    baseline = statistics.mean(r[key] for r in without)
-    each = (
-        ", ".join(f"{r[key]:.1f}" for r in runs)
-        + " against "
-        + ", ".join(f"{r[key]:.1f}" for r in without)
-    )
-    return _row(
-        f"{orbits:g}-orbit mission, {COST_FIGURES[key]}, {what} (runs: {each})",
-        "s",
-        project,
-        baseline,
-        "without --ros2",
-        project / baseline,
-        TARGET,
-        bench="ros2",
-    )
+    figure = f"{orbits:g}-orbit mission, {COST_FIGURES[key]}, {what}"
+    return alternated_row(figure, key, runs, without, "without --ros2", TARGET, "ros2")
 
 
 def cost_rows(orbits: float, runs: dict[str, list[dict[str, Any]]]) -> list[dict[str, Any]]:
