@@ -327,31 +327,21 @@ class _StackedDynamics:
             self.use_drag = drag and bool(np.any(bc > 0.0))
             self.track = (atmosphere.t0, atmosphere.coefficients())
             self.drag_k = (-0.5 * bc).tolist()
+            self.r_ref = self.inv_h = 0.0
             return
         self.use_drag = drag and atmosphere.density_factor > 0.0 and bool(np.any(bc > 0.0))
         rho_scale = atmosphere.density_factor * atmosphere.rho0
-        # ln rho = ln_rho + (r_ref - |r|) inv_h per craft, rho_scale in drag_k
-        self.ln_rho = [0.0] * n
-        self.r_ref = [atmosphere.r_planet + atmosphere.h_ref] * n
-        self.inv_h = [1.0 / atmosphere.scale_height] * n
+        self.r_ref = atmosphere.r_planet + atmosphere.h_ref
+        self.inv_h = 1.0 / atmosphere.scale_height
         self.drag_k = (-0.5 * bc * rho_scale).tolist()
-
-    def _density_terms(self, t: float) -> tuple[list[float], list[float], list[float]]:
-        """(ln rho offset, reference radius, 1/H) per craft at time t."""
-        if self.track is None:
-            return self.ln_rho, self.r_ref, self.inv_h
-        t0, (r0, dr, l0, dl, h0, dh) = self.track
-        s = t - t0
-        return (
-            [a + b * s for a, b in zip(l0, dl, strict=True)],
-            [a + b * s for a, b in zip(r0, dr, strict=True)],
-            [a + b * s for a, b in zip(h0, dh, strict=True)],
-        )
 
     def __call__(self, t: float, y: FloatArray) -> FloatArray:
         n, mu, j2, k_j2 = self.n, self.mu, self.j2, self.k_j2
-        use_drag, hill = self.use_drag, self.hill
-        ln_rho, r_ref, inv_h = self._density_terms(t)
+        use_drag, hill, r_ref, inv_h = self.use_drag, self.hill, self.r_ref, self.inv_h
+        track = self.track
+        if track is not None:  # each craft's ln rho = l0 + dl s - (|r| - r0 - dr s)(h0 + dh s)
+            s = t - track[0]
+            r0, dr, l0, dl, h0, dh = track[1]
         nx_, ny_, nz_, drag_k = self.nx, self.ny, self.nz, self.drag_k
         Y = y.tolist()
         out = [0.0] * (6 * n)
@@ -377,7 +367,11 @@ class _StackedDynamics:
                 else:
                     nv = nx_[i] * vx + ny_[i] * vy + nz_[i] * vz
                 if nv > 0.0:
-                    kd = drag_k[i] * math.exp(ln_rho[i] + (r_ref[i] - rn) * inv_h[i]) * nv
+                    if track is None:
+                        kd = drag_k[i] * math.exp((r_ref - rn) * inv_h) * nv
+                    else:
+                        ln_rho = l0[i] + dl[i] * s + (r0[i] + dr[i] * s - rn) * (h0[i] + dh[i] * s)
+                        kd = drag_k[i] * math.exp(ln_rho) * nv
                     ax, ay, az = ax + kd * vx, ay + kd * vy, az + kd * vz
             out[o : o + 6] = (vx, vy, vz, ax, ay, az)
         return np.array(out)

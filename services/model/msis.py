@@ -6,9 +6,9 @@ craft), where a call of the model would cost more than the whole step.  So the m
 evaluated at anchors along each craft's track, one a step (at the step's ends), each at the
 craft's altitude and 2 km above (its local scale height); the integrator flies the local
 exponential through the two anchors of its step (``ddvi_core.atmosphere.DensityTrack``).  A
-step's end anchor is the next one's start, and the anchors of three steps are evaluated in one
+step's end anchor is the next one's start, and the anchors of six steps are evaluated in one
 batched call at the positions a third-order two-body Taylor series predicts: a model call
-every three steps.  Against the model evaluated at the craft's true position and time, along a
+every six steps.  Against the model evaluated at the craft's true position and time, along a
 mission's trajectory, the track's density is within the bound tests/model/test_msis.py asserts
 and docs/atmosphere.md states.
 
@@ -37,8 +37,8 @@ from services.config import Deployment, parse_epoch
 
 __all__ = ["ANCHOR_BATCH", "SCALE_HEIGHT_STEP", "MsisDensity", "SpaceWeather"]
 
-ANCHOR_BATCH = 3
-"""Anchors evaluated per model call: those of the next three steps, predicted from the state at
+ANCHOR_BATCH = 6
+"""Anchors evaluated per model call: those of the next six steps, predicted from the state at
 the first one's start."""
 
 SCALE_HEIGHT_STEP = 2e3
@@ -116,8 +116,8 @@ class MsisDensity:
         self.log_factor = float(np.log(density_factor))
         self._epoch64 = np.datetime64(epoch, "us")
         self._days0 = (epoch - _J2000).total_seconds() / 86400.0  # UT1 days since J2000.0
-        # anchors held for the coming calls: {t: (radius, ln rho, 1/H) each (N,)}
-        self._held: dict[float, tuple[NDArray[np.float64], ...]] = {}
+        # anchors held for the coming calls: {t: (N, 3) [radius, ln rho, 1/H]}
+        self._held: dict[float, NDArray[np.float64]] = {}
 
     @classmethod
     def from_deployment(cls, dep: Deployment) -> MsisDensity:
@@ -164,11 +164,9 @@ class MsisDensity:
         )
         return np.log(out[:, self._rho_index].astype(float))
 
-    def _anchors(
-        self, times: list[float], r: NDArray[np.float64]
-    ) -> dict[float, tuple[NDArray[np.float64], ...]]:
-        """{t: (radius, ln rho with the density factor, 1/H), each (N,)} at positions r
-        (K, N, 3) at the K times: the model at r and SCALE_HEIGHT_STEP above, in one call."""
+    def _anchors(self, times: list[float], r: NDArray[np.float64]) -> dict[float, NDArray]:
+        """{t: (N, 3) [radius, ln rho with the density factor, 1/H]} at positions r (K, N, 3)
+        at the K times: the model at r and SCALE_HEIGHT_STEP above, in one call."""
         k, n = r.shape[0], r.shape[1]
         t = np.repeat(np.asarray(times, dtype=float), n)  # (K N,)
         f107, aps = self.weather.f107(t), self.weather.ap_history(t)
@@ -178,15 +176,8 @@ class MsisDensity:
         both = self._log_density(np.tile(t, 2), np.concatenate((points, points)), dh, weather)
         low, high = both[: k * n], both[k * n :]
         inv_h = inverse_scale_height(np.exp(low), np.exp(high), SCALE_HEIGHT_STEP)
-        radius, log_rho = np.linalg.norm(points, axis=1), low + self.log_factor
-        return {
-            times[i]: (
-                radius[i * n : (i + 1) * n],
-                log_rho[i * n : (i + 1) * n],
-                inv_h[i * n : (i + 1) * n],
-            )
-            for i in range(k)
-        }
+        rows = np.column_stack((np.linalg.norm(points, axis=1), low + self.log_factor, inv_h))
+        return {times[i]: rows[i * n : (i + 1) * n] for i in range(k)}
 
     def track(self, t0: float, t1: float, state: ArrayLike) -> DensityTrack:
         """Each craft's density track over [t0, t1] from its states (N, 6) at t0.
@@ -199,14 +190,14 @@ class MsisDensity:
         if x.ndim != 2 or x.shape[1] != 6:
             raise ValueError(f"state must have shape (N, 6), got {x.shape}")
         t0, t1, n = float(t0), float(t1), len(x)
-        held = {t: a for t, a in self._held.items() if t >= t0 and len(a[0]) == n}
+        held = self._held
+        if any(t < t0 or len(a) != n for t, a in held.items()):
+            held = {t: a for t, a in held.items() if t >= t0 and len(a) == n}
         if t0 not in held:
             held.update(self._anchors([t0], x[:, :3][None]))
         if t1 not in held:
             times = t0 + (t1 - t0) * np.arange(1, ANCHOR_BATCH + 1)
             held.update(self._anchors(times.tolist(), predict_positions(x, times - t0)))
         self._held = held
-        radius, log_rho, inv_h = (
-            np.column_stack(pair) for pair in zip(held[t0], held[t1], strict=True)
-        )
-        return DensityTrack(t0=t0, t1=t1, radius=radius, log_rho=log_rho, inv_scale_height=inv_h)
+        pair = np.stack((held[t0], held[t1]), axis=2)  # (N, 3, 2)
+        return DensityTrack(t0, t1, pair[:, 0], pair[:, 1], pair[:, 2])
