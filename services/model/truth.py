@@ -9,7 +9,7 @@ The Basilisk backend (``services.model.basilisk``) builds on this module;
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +20,9 @@ from ddvi_core.orbit import mrp_to_dcm
 from ddvi_core.truth import Atmosphere, Spacecraft, propagate
 from services.config import Deployment, check_panel
 from services.model.mission import facet_normal, initial_states, orbit_period
+
+if TYPE_CHECKING:
+    from services.model.msis import MsisDensity
 
 
 class ReentryError(RuntimeError):
@@ -138,7 +141,7 @@ class BuiltinTruth:
         self._dep = dep
         self._state = initial_states(dep)
         self._craft, self._atmosphere = truth_craft(dep), truth_atmosphere(dep)
-        self._msis = None
+        self._msis: MsisDensity | None = None
         if dep.atmosphere.model == "nrlmsis":
             from services.model.msis import MsisDensity  # pymsis only when a deployment asks
 
