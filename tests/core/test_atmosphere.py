@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from datetime import datetime
 
 import numpy as np
 import pytest
@@ -103,3 +104,11 @@ def test_sidereal_time_turns_the_earth_under_the_inertial_frame() -> None:
     assert lon[0] == pytest.approx(360.0 - 280.46061837, abs=1e-8)
     with pytest.raises(ValueError, match="r_N must have shape"):
         inertial_to_geodetic(np.zeros((2, 3)), np.zeros(3))
+
+
+def test_the_equinox_sun_direction_is_over_greenwich_at_noon_utc() -> None:
+    """At the March equinox the Sun lies along inertial +x; at 12:00 UTC it stands over
+    longitude 0 within the equation of time (under 2 deg in March)."""
+    days = (datetime(2024, 3, 20, 12) - datetime(2000, 1, 1, 12)).total_seconds() / 86400.0
+    _, lon, _ = inertial_to_geodetic(np.array([[7e6, 0.0, 0.0]]), np.array([days]))
+    assert abs(lon[0]) < 3.0

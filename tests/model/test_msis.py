@@ -114,6 +114,14 @@ def test_the_day_side_is_denser_than_the_night_side() -> None:
     assert day > 1.5 * night
 
 
+def test_the_sunward_side_is_denser_at_noon_utc_on_the_equinox() -> None:
+    """The frames and the model together: at the equinox the Sun lies along inertial +x."""
+    model = MsisDensity(datetime(2024, 3, 20, 12), SpaceWeather(150.0, 150.0, 4.0))
+    r = (6378137.0 + 400e3) * np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    day, night = model.density([0.0, 0.0], r)
+    assert day > 1.5 * night
+
+
 def test_a_storm_profile_raises_density_after_its_onset_only() -> None:
     quiet = MsisDensity(EPOCH, SpaceWeather(150.0, 150.0, 4.0))
     onset = 3 * 3600.0
