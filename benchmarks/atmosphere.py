@@ -82,8 +82,8 @@ def bench_atmosphere(quick: bool = False) -> list[dict[str, Any]]:
     rows = [
         (f"{orbits:g}-orbit mission in process, NRLMSIS truth, wall", "wall", "<= 1.5x"),
         ("its truth alone in process (no controllers), NRLMSIS, wall", "truth", ""),
-        ("the same, CPU of the process (not inflated by a loaded machine)", "cpu", ""),
-        ("its environment's share (truth and exostate), wall", "environment", ""),
+        ("the mission, CPU of the process (not inflated by a loaded machine)", "cpu", ""),
+        ("the mission's environment share (truth and exostate), wall", "environment", ""),
     ]
     return [
         _row(metric, "s", nrl[key], exp[key], name, nrl[key] / exp[key], target, "atmosphere")
