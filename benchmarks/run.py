@@ -38,6 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "mission": "benchmarks.mission:bench_mission",
     "learning": "benchmarks.learning:bench_learning",
     "swarm": "benchmarks.mission:bench_swarm",
+    "atmosphere": "benchmarks.atmosphere:bench_atmosphere",
     "basilisk": "benchmarks.mission:bench_basilisk",
     "flight": "benchmarks.flight:bench_flight",
     "live": "benchmarks.live:bench_live",

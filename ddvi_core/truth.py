@@ -1,7 +1,12 @@
-"""Truth dynamics: two-body + J2 gravity and exponential-atmosphere facet drag, any number of craft.
+"""Truth dynamics: two-body + J2 gravity and facet drag, any number of craft.
 
 The environment service propagates the truth with :func:`propagate`, once per flight-software
 step, with every spacecraft stacked in one ODE. All functions are pure.
+
+The density is an exponential atmosphere (:class:`Atmosphere`), or, for a truth from an
+upper-atmosphere model such as NRLMSIS, each craft's density along its own track over the call
+(``ddvi_core.atmosphere.DensityTrack``, evaluated at every integrator stage as cheaply as the
+exponential).
 
 Drag model (the one of Basilisk's ``facetDragDynamicEffector``): each craft has one flat facet of
 area A, drag coefficient C_D and body-frame unit normal n_B. The flow velocity is the craft's
@@ -26,6 +31,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ddvi_core.atmosphere import DensityTrack
 from ddvi_core.constants import J2_EARTH, MU_EARTH, R_EARTH
 from ddvi_core.orbit import _dcm_stack, _stack, elements_to_rv
 
@@ -301,7 +307,7 @@ class _StackedDynamics:
         self,
         C: FloatArray,
         craft: Spacecraft | Sequence[Spacecraft],
-        atmosphere: Atmosphere,
+        atmosphere: Atmosphere | DensityTrack,
         *,
         hill: bool,
         j2: bool,
@@ -312,17 +318,30 @@ class _StackedDynamics:
         bc, normal_B = _craft_arrays(craft, n)
         normal = np.einsum("nji,nj->ni", C, normal_B)  # [BN]^T n_B, or [BH]^T n_B in "hill" mode
         self.n, self.hill, self.j2, self.mu = n, hill, j2, mu
+        self.k_j2 = -1.5 * J2_EARTH * mu * R_EARTH * R_EARTH
+        self.nx, self.ny, self.nz = (normal[:, k].tolist() for k in range(3))
+        self.track: tuple[float, tuple[list[float], ...]] | None = None
+        if isinstance(atmosphere, DensityTrack):
+            if atmosphere.n != n:
+                raise ValueError(f"the density track has {atmosphere.n} craft, the state {n}")
+            self.use_drag = drag and bool(np.any(bc > 0.0))
+            self.track = (atmosphere.t0, atmosphere.coefficients())
+            self.drag_k = (-0.5 * bc).tolist()
+            self.r_ref = self.inv_h = 0.0
+            return
         self.use_drag = drag and atmosphere.density_factor > 0.0 and bool(np.any(bc > 0.0))
         rho_scale = atmosphere.density_factor * atmosphere.rho0
         self.r_ref = atmosphere.r_planet + atmosphere.h_ref
         self.inv_h = 1.0 / atmosphere.scale_height
-        self.k_j2 = -1.5 * J2_EARTH * mu * R_EARTH * R_EARTH
-        self.nx, self.ny, self.nz = (normal[:, k].tolist() for k in range(3))
         self.drag_k = (-0.5 * bc * rho_scale).tolist()
 
-    def __call__(self, _t: float, y: FloatArray) -> FloatArray:
+    def __call__(self, t: float, y: FloatArray) -> FloatArray:
         n, mu, j2, k_j2 = self.n, self.mu, self.j2, self.k_j2
         use_drag, hill, r_ref, inv_h = self.use_drag, self.hill, self.r_ref, self.inv_h
+        track = self.track
+        if track is not None:  # each craft's ln rho = l0 + dl s - (|r| - r0 - dr s)(h0 + dh s)
+            s = t - track[0]
+            r0, dr, l0, dl, h0, dh = track[1]
         nx_, ny_, nz_, drag_k = self.nx, self.ny, self.nz, self.drag_k
         Y = y.tolist()
         out = [0.0] * (6 * n)
@@ -348,7 +367,11 @@ class _StackedDynamics:
                 else:
                     nv = nx_[i] * vx + ny_[i] * vy + nz_[i] * vz
                 if nv > 0.0:
-                    kd = drag_k[i] * math.exp((r_ref - rn) * inv_h) * nv
+                    if track is None:
+                        kd = drag_k[i] * math.exp((r_ref - rn) * inv_h) * nv
+                    else:
+                        ln_rho = l0[i] + dl[i] * s + (r0[i] + dr[i] * s - rn) * (h0[i] + dh[i] * s)
+                        kd = drag_k[i] * math.exp(ln_rho) * nv
                     ax, ay, az = ax + kd * vx, ay + kd * vy, az + kd * vz
             out[o : o + 6] = (vx, vy, vz, ax, ay, az)
         return np.array(out)
@@ -360,7 +383,7 @@ def propagate(
     t1: float,
     attitude: ArrayLike,
     craft: Spacecraft | Sequence[Spacecraft] = Spacecraft(),
-    atmosphere: Atmosphere = Atmosphere(),
+    atmosphere: Atmosphere | DensityTrack = Atmosphere(),
     *,
     attitude_frame: Literal["inertial", "hill"] = "inertial",
     j2: bool = True,
@@ -387,7 +410,8 @@ def propagate(
           0.07 rad (4 deg): holding [BN] for 60 s instead moves a deputy at sigma_rel =
           [0, 0, 0.1] by about 9 m per orbit relative to the chief.
     craft : one Spacecraft shared by all craft, or a sequence of N.
-    atmosphere : exponential atmosphere.
+    atmosphere : the exponential atmosphere, or each craft's density along its track over
+        [t0, t1] (``ddvi_core.atmosphere.DensityTrack``, built for this interval).
     j2, drag : switch the J2 and drag terms.
     t_eval : optional (K,) sample times in [t0, t1] (increasing); when given the result holds
         the states at those times (include t1 to get the final state).

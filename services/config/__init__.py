@@ -27,6 +27,7 @@ from services.config.validation import (
     check_panel,
     check_ros2_endpoint,
     deployment_from_table,
+    parse_epoch,
 )
 from services.config.wiring import check_kill, check_link_fault, link_from_params
 
@@ -45,6 +46,7 @@ __all__ = [
     "deployment_from_table",
     "link_from_params",
     "load_deployment",
+    "parse_epoch",
     "read_table",
     "resolve",
     "with_ros2",

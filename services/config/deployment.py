@@ -93,9 +93,25 @@ class Environment:
 
 @dataclass(frozen=True)
 class Atmosphere:
+    """The truth's atmosphere (docs/atmosphere.md).  ``rho0``, ``h_ref`` and ``scale_height``
+    are the exponential model: the controllers' nominal model always, and the truth's with
+    ``model = "exponential"``.  With ``model = "nrlmsis"`` the truth's density is NRLMSIS 2.1's
+    along each craft's position, at ``epoch`` plus simulation time, under the solar flux
+    ``f107`` (sfu, the F10.7 MSIS takes: the previous day's), its 81-day mean ``f107a`` and
+    the geomagnetic index ``ap``, or through ``storm``: breakpoints ``[t_s, ap]`` or
+    ``[t_s, f107, ap]`` (t in simulation seconds, strictly increasing), linear between them,
+    held at the first before it and at the last after it; they replace ``ap`` (and ``f107``
+    with three columns).  environment.density_factor scales either model's truth density."""
+
     rho0: float = 2.2e-11  # kg/m^3 at h_ref
     h_ref: float = 300e3
     scale_height: float = 8e3
+    model: str = "exponential"  # or "nrlmsis" (the truth only)
+    epoch: str = "2024-03-20T00:00:00Z"  # UTC at simulation time 0 (ISO 8601)
+    f107: float = 150.0  # sfu
+    f107a: float = 150.0  # sfu, 81-day mean
+    ap: float = 4.0  # daily Ap (and every 3-hour ap)
+    storm: list[list[float]] = field(default_factory=list)  # [[t_s, ap] or [t_s, f107, ap], ...]
 
 
 @dataclass(frozen=True)

@@ -9,16 +9,20 @@ The Basilisk backend (``services.model.basilisk``) builds on this module;
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ddvi_core.atmosphere import DensityTrack
 from ddvi_core.constants import R_EARTH
 from ddvi_core.orbit import mrp_to_dcm
 from ddvi_core.truth import Atmosphere, Spacecraft, propagate
 from services.config import Deployment, check_panel
 from services.model.mission import facet_normal, initial_states, orbit_period
+
+if TYPE_CHECKING:
+    from services.model.msis import MsisDensity
 
 
 class ReentryError(RuntimeError):
@@ -40,6 +44,8 @@ def truth_craft(dep: Deployment) -> list[Spacecraft]:
 
 
 def truth_atmosphere(dep: Deployment) -> Atmosphere:
+    """The exponential truth atmosphere: the nominal profile times environment.density_factor
+    (with atmosphere.model = "nrlmsis" the built-in backend flies NRLMSIS instead)."""
     atm = dep.atmosphere
     return Atmosphere(
         rho0=atm.rho0,
@@ -55,7 +61,7 @@ def truth_step(
     t_k: float,
     sigma: NDArray,
     craft: list[Spacecraft],
-    atmosphere: Atmosphere,
+    atmosphere: Atmosphere | DensityTrack,
 ) -> tuple[NDArray, NDArray]:
     """Propagate the truth over one flight-software step from t_k with each deputy's relative
     MRP ``sigma`` (N, 3) held (chief Hill-pointing).  Returns the navigation sample times
@@ -127,21 +133,29 @@ class Truth(Protocol):
 
 
 class BuiltinTruth:
-    """The built-in backend: ``ddvi_core.truth`` (two-body + J2 + facet drag in one ODE)."""
+    """The built-in backend: ``ddvi_core.truth`` (two-body + J2 + facet drag in one ODE), with
+    the exponential atmosphere or NRLMSIS (``services.model.msis``) as the deployment's
+    atmosphere.model says."""
 
     def __init__(self, dep: Deployment) -> None:
         self._dep = dep
         self._state = initial_states(dep)
         self._craft, self._atmosphere = truth_craft(dep), truth_atmosphere(dep)
+        self._msis: MsisDensity | None = None
+        if dep.atmosphere.model == "nrlmsis":
+            from services.model.msis import MsisDensity  # pymsis only when a deployment asks
+
+            self._msis = MsisDensity.from_deployment(dep)
 
     @property
     def state(self) -> NDArray[np.float64]:
         return self._state
 
     def step(self, t_k: float, sigma: NDArray) -> tuple[NDArray, NDArray]:
-        samples, traj = truth_step(
-            self._dep, self._state, t_k, sigma, self._craft, self._atmosphere
-        )
+        atmosphere: Atmosphere | DensityTrack = self._atmosphere
+        if self._msis is not None:  # each craft's NRLMSIS density along this step's track
+            atmosphere = self._msis.track(t_k, t_k + self._dep.run.fsw_period, self._state)
+        samples, traj = truth_step(self._dep, self._state, t_k, sigma, self._craft, atmosphere)
         self._state = traj[-1]
         return samples, traj
 
