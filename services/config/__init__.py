@@ -1,5 +1,6 @@
 """Deployments: the typed deployment (``deployment``), its semantic checks (``validation``;
-what its patterns name: ``wiring``; the physical range of every number: ``ranges``) and its
+what its patterns name: ``wiring``; the physical range of every number: ``ranges``; the truth's
+atmosphere: ``atmosphere``) and its
 files (``files``); the strict TOML reader they use is ``ddvi_core.tables``.  A deployment is
 data: reading one starts nothing.
 
@@ -7,6 +8,7 @@ May import: ``ddvi_core``, ``services.interface`` (its topics and the links' dec
 Not the bus (so not zenoh), models, processes or tools.
 """
 
+from services.config.atmosphere import parse_epoch
 from services.config.deployment import (
     Deployment,
     DeploymentError,
@@ -27,7 +29,6 @@ from services.config.validation import (
     check_panel,
     check_ros2_endpoint,
     deployment_from_table,
-    parse_epoch,
 )
 from services.config.wiring import check_kill, check_link_fault, link_from_params
 
