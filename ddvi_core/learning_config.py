@@ -66,7 +66,11 @@ class LearningConfig:
     The flight software's schedule (:data:`FLIGHT_SCHEDULE_KEYS`, read from a deployment's
     ``deputy.learning`` table, never from a system file; in chief orbits): learn_at_orbits:
     when to learn and switch gains; retry_orbits: after a failed attempt, explore on and try
-    again this much later; learn_until_orbits: no attempt after this orbit (0: no limit);
+    again this much later; learn_until_orbits: no attempt after this orbit (0: no limit; a
+    deputy's follows from the mission), and a learner that has validated no gain by then flies
+    its fallback; fallback: what that is, 'last' (the gains it validated last: after a
+    re-learning that failed, those of before the detection; before any, the nominal model's
+    LQR gains) or 'lqr' (the nominal model's LQR gains, always);
     window_orbits: learn from the last this many orbits of data (0: all
     of it); along_track_reference: the data's reference state about its mean along-track
     position; relearn: after learning, watch the plant for a change (an actuator fault) and
@@ -136,6 +140,7 @@ class LearningConfig:
     learn_at_orbits: float = 15.0
     retry_orbits: float = 1.0
     learn_until_orbits: float = 0.0
+    fallback: str = "last"
     window_orbits: float = 0.0
     along_track_reference: bool = True
     relearn: bool = False
@@ -269,6 +274,7 @@ FLIGHT_SCHEDULE_KEYS = (
     "learn_at_orbits",
     "retry_orbits",
     "learn_until_orbits",
+    "fallback",
     "window_orbits",
     "along_track_reference",
     "relearn",
@@ -313,7 +319,7 @@ MISSION_SEED = 1
 
 
 def mission_learning(
-    given: LearningConfig, keys: Collection[str], attitude_limit: float
+    given: LearningConfig, keys: Collection[str], attitude_limit: float, orbits: float
 ) -> LearningConfig:
     """A deputy's learning configuration: the keys in ``keys`` (its learning table's) as
     ``given``; of the others, those below follow from the mission, and every other key keeps
@@ -331,11 +337,15 @@ def mission_learning(
     - seed: :data:`MISSION_SEED`.  The phases are a draw (a campaign disperses them); the
       default 0 is the example systems' (on seed 1 the double integrator's hybrid learner
       does not converge).
+    - learn_until_orbits: half-way from learn_at_orbits to the mission's end (``orbits``, in
+      chief orbits), never before learn_at_orbits: a learner that has validated no gain by
+      then flies its fallback for the rest, rather than K0's exploration to the end.
     """
     mission: dict[str, Any] = {
         "exploration_amplitude": attitude_limit / 2,
         "K0": ((0.0, 0.0, 0.0, 0.0),),
         "seed": MISSION_SEED,
+        "learn_until_orbits": given.learn_at_orbits + max(orbits - given.learn_at_orbits, 0) / 2,
         **IMPLICIT_ITERATION,
     }
     return replace(given, **{k: v for k, v in mission.items() if k not in keys})

@@ -149,6 +149,8 @@ def _check_deputy_navigation(w: str, d: Deputy, dep: Deployment) -> None:
 
 LEARNING_METHODS = ("value-iteration", "model-fit")
 LEARNING_SOURCES = ("estimate", "measurement")
+LEARNING_FALLBACKS = ("last", "lqr")
+"""learning.fallback: the gains validated last (the nominal LQR's before any), or the LQR's."""
 
 
 def _check_deputy_learning(w: str, d: Deputy) -> None:
@@ -160,11 +162,15 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
         raise DeploymentError(
             f"{where}.exploration_amplitude: must lie in [0, attitude_limit = {d.attitude_limit}]"
         )
-    if not (lrn.learn_until_orbits == 0 or lrn.learn_until_orbits >= lrn.learn_at_orbits):
+    until = lrn.learn_until_orbits
+    if not (math.isfinite(until) and until >= lrn.learn_at_orbits):
         raise DeploymentError(
-            f"{where}.learn_until_orbits: must be 0 (no limit) or at least learn_at_orbits "
-            f"({lrn.learn_at_orbits:g}), got {lrn.learn_until_orbits}"
+            f"{where}.learn_until_orbits: must be at least learn_at_orbits "
+            f"({lrn.learn_at_orbits:g}): after it a learner that has validated no gain flies "
+            f"its fallback (leave it out: half-way from learn_at_orbits to the mission's end), "
+            f"got {until}"
         )
+    _one_of(f"{where}.fallback", lrn.fallback, LEARNING_FALLBACKS)
     if not (math.isfinite(lrn.window_orbits) and lrn.window_orbits >= 0):
         raise DeploymentError(f"{where}.window_orbits: must be >= 0 (0 = all data)")
     for key in ("relearn_window_orbits", "detector_bound", "detector_window_orbits"):
@@ -414,7 +420,12 @@ def deployment_from_table(table: dict[str, Any], path: str = "") -> Deployment:
     (``ddvi_core.learning_config.mission_learning``, by the deputy's attitude limit)."""
     dep = from_table(Deployment, table, keys=DEPLOYMENT_KEYS, error=DeploymentError)
     deputies = [
-        replace(d, learning=mission_learning(d.learning, t.get("learning", {}), d.attitude_limit))
+        replace(
+            d,
+            learning=mission_learning(
+                d.learning, t.get("learning", {}), d.attitude_limit, dep.run.orbits
+            ),
+        )
         for d, t in zip(dep.deputy, table.get("deputy", []), strict=True)
     ]
     dep = replace(dep, deputy=deputies, path=path)

@@ -20,7 +20,9 @@ again on K0 (phase "relearning"), learns again from the newest ``relearn_window_
 after ``relearn_settle_orbits``, with the density ratio added to its exostate
 (services.flight.learners.LearnerExostate), switches to the new gains and re-arms the
 detector; after ``relearn_max_attempts`` failed attempts it flies the gains of before the
-detection again (source "fallback") and watches no more until it is restarted.  Every
+detection again (source "fallback"; with ``learning.fallback = "lqr"`` the nominal model's
+LQR gains, phase "fallback") and watches no more until it is restarted.  A learner that has
+validated no gain by ``learn_until_orbits`` flies the LQR gains too (phase "fallback").  Every
 command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
 nav message), which makes the facet's drag linear in u and the same at every altitude.  The
 learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
@@ -73,8 +75,9 @@ class Controller:
         density_ratio = self.actuation.density_ratio
         self.exostate = LearnerExostate(self.problem, lrn.carries_density_ratio, density_ratio)
         self.learner: Learner | None = None
+        lqr = Gains(*lqr_gains(dep, self.deputy), "lqr")  # a learner's fallback
         if self.mode == "lqr":
-            self.phases = PhaseMachine(Phase.LQR, Gains(*lqr_gains(dep, self.deputy), "lqr"))
+            self.phases = PhaseMachine(Phase.LQR, lqr)
         else:
             q = self.exosystem[1].shape[0]
             self.learner = make_learner(dep, self.deputy, self.problem, q)
@@ -92,11 +95,12 @@ class Controller:
             self.exostate,
             self.watch,
             self.actuation,
+            lqr,
         )
 
     @property
     def phase(self) -> str:
-        """The phase's word: "lqr", "exploring", "learned" or "relearning"."""
+        """The phase's word: "lqr", "exploring", "learned", "relearning" or "fallback"."""
         return self.phases.current.value
 
     @property

@@ -36,6 +36,7 @@ class LearningCycle:
     exostate : the learner's exostate (the density ratio added on re-learning).
     watch : the change detector's watch.
     actuation : the commands (their link delay: when a restarted learner's data start).
+    lqr : the nominal model's LQR gains, K (1, n) and L (1, 5) (source "lqr"): the fallback.
     """
 
     def __init__(
@@ -48,10 +49,11 @@ class LearningCycle:
         exostate: LearnerExostate,
         watch: ChangeWatch,
         actuation: Actuation,
+        lqr: Gains,
     ) -> None:
         self.deputy, self.orbit, self.fsw = deputy, orbit, fsw
         self.learner, self.phases, self.exostate = learner, phases, exostate
-        self.watch, self.actuation = watch, actuation
+        self.watch, self.actuation, self.lqr = watch, actuation, lqr
         self.iteration = 0
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
@@ -59,6 +61,7 @@ class LearningCycle:
         self.learn_attempts = 0
         self.learned_at: list[float] = []  # every switch to learned gains (s)
         self.abandoned_at: list[float] = []  # every return to the old gains (s)
+        self.fallback_at: list[float] = []  # when it took to the LQR fallback (s)
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -149,11 +152,15 @@ class LearningCycle:
     def learning_failed(self, t: float, why: str) -> str:
         """A learning attempt at t did not give gains (``why``): explore on and try again
         ``retry_orbits`` later; but once re-learning has failed ``relearn_max_attempts``
-        times, stop exploring and fly the gains of before the detection again, with the
-        detector off (it would only see the same change again).  Exploring on K0 for ever
-        is worse than the old gains: K0 holds no slot, and the deputy drifts off with the
-        fault's bias (measured: 18.5 km off at orbit 50 with a panel stuck at 60 deg, against
-        673 m with the old gains back after 5 attempts).  Returns the log line."""
+        times, stop exploring and fly the gains of before the detection again (``fallback =
+        "last"``) or the fallback (``"lqr"``), with the detector off (it would only see the
+        same change again).  Exploring on K0 for ever is worse than the old gains: K0 holds no
+        slot, and the deputy drifts off with the fault's bias (measured: 18.5 km off at orbit
+        50 with a panel stuck at 60 deg, against 673 m with the old gains back after 5
+        attempts).  So is it where no first gain validates: past ``learn_until_orbits`` (far
+        from where it started the linear model no longer holds the data: a deputy that cannot
+        hold its slot drifts 100 km and more, so a late fit is not trusted) it flies the
+        fallback.  Returns the log line."""
         lrn, before = self.deputy.learning, self.phases.before
         if before is not None:
             before.failures += 1
@@ -162,18 +169,29 @@ class LearningCycle:
                 self.learner.store = before.store
                 self.rank, self.rank_needed = before.rank
                 self.watch.disarm()
-                self.phases.move(Phase.LEARNED, Gains(before.K, before.L, "fallback"))
                 self.abandoned_at.append(t)
+                said = f"{why}; re-learning abandoned after {before.failures} attempts"
+                if lrn.fallback == "lqr":
+                    return self.fall_back(t, said)
+                self.phases.move(Phase.LEARNED, Gains(before.K, before.L, "fallback"))
                 return (
-                    f"{why}; re-learning abandoned after {before.failures} attempts: flying "
-                    f"the gains learned at t = {before.learned_at:.0f} s again, fault detector off"
+                    f"{said}: flying the gains learned at t = {before.learned_at:.0f} s again, "
+                    "fault detector off"
                 )
         retry = t + lrn.retry_orbits * self.orbit
-        until = lrn.learn_until_orbits * self.orbit
-        if lrn.learn_until_orbits > 0 and retry > until + 1e-6:
-            # far from where it started the linear model no longer holds the data (a deputy
-            # that cannot hold its slot drifts 100 km and more), so a late fit is not trusted
-            self.phases.reschedule(next_attempt=math.inf)
-            return f"{why}; no gain accepted by orbit {lrn.learn_until_orbits:g}: learning stops"
+        until = lrn.learn_until_orbits
+        if before is None and retry > until * self.orbit + 1e-6:
+            return self.fall_back(t, f"{why}; no gain validated by orbit {until:g}")
         self.phases.reschedule(next_attempt=retry)
         return f"{why}, exploring on"
+
+    def fall_back(self, t: float, why: str) -> str:
+        """Fly the fallback from step t to the end: the nominal model's LQR gains (the
+        feedforward zero on an exostate mode the model has not: the density ratio).  Returns
+        the log line, which says why (``why``)."""
+        q = self.exostate.exosystem[1].shape[0]
+        L = np.zeros((1, q))
+        L[:, : self.lqr.L.shape[1]] = self.lqr.L
+        self.phases.move(Phase.FALLBACK, Gains(self.lqr.K, L, "lqr"))
+        self.fallback_at.append(t)
+        return f"{why}: flying the fallback, the nominal model's LQR gains, from t = {t:.0f} s"

@@ -4,7 +4,10 @@ An LQR deputy stays in ``lqr``.  A learning deputy starts ``exploring`` (K0 and 
 exploration, collecting for its learner), is ``learned`` once a gain is taken, and with
 ``learning.relearn`` goes ``relearning`` (K0 and the exploration again) when its change
 detector sees the plant change; from there it is ``learned`` again, on the new gains or, when
-re-learning fails too often, on the gains of before the detection.  The phase in force holds
+re-learning fails too often, on the gains of before the detection.  Where no gain validates
+(no first gain by ``learning.learn_until_orbits``; re-learning failed with ``learning.fallback
+= "lqr"``) it flies its ``fallback``, the nominal model's LQR gains, to the end: never K0's
+exploration, which holds no slot.  The phase in force holds
 what it flies and when it learns: its gains (``Gains``: K, L and their source), an exploring
 phase its ``Schedule`` (data from when, the next attempt when), re-learning what flew before
 the detection (``Relearning``); so that no move changes one without the others.
@@ -33,12 +36,15 @@ class Phase(StrEnum):
     EXPLORING = "exploring"
     LEARNED = "learned"
     RELEARNING = "relearning"
+    FALLBACK = "fallback"
 
 
 TRANSITIONS: dict[tuple[Phase, Phase], str] = {
     (Phase.EXPLORING, Phase.LEARNED): "a learning attempt gave gains",
+    (Phase.EXPLORING, Phase.FALLBACK): "no gain validated by learning.learn_until_orbits",
     (Phase.LEARNED, Phase.RELEARNING): "the change detector saw the plant change",
     (Phase.RELEARNING, Phase.LEARNED): "re-learning gave gains, or was abandoned",
+    (Phase.RELEARNING, Phase.FALLBACK): 're-learning was abandoned with learning.fallback = "lqr"',
 }
 """Every move a controller may make, with what makes it; the LQR never moves."""
 
@@ -47,6 +53,7 @@ SOURCES: dict[Phase, str] = {
     Phase.LQR: "lqr",
     Phase.EXPLORING: "initial",
     Phase.RELEARNING: "initial",
+    Phase.FALLBACK: "lqr",
 }
 """The source of the gains each phase but ``learned`` flies; ``learned`` flies any other (a
 learner's name, or "fallback")."""
@@ -143,8 +150,8 @@ class PhaseMachine:
 
     @property
     def converged(self) -> bool:
-        """Flying gains that are not explored on: the LQR's, or learned ones."""
-        return self.current in (Phase.LQR, Phase.LEARNED)
+        """Flying gains that are not explored on: the LQR's, learned ones or the fallback."""
+        return self.current in (Phase.LQR, Phase.LEARNED, Phase.FALLBACK)
 
     @property
     def exploring(self) -> bool:

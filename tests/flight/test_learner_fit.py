@@ -15,7 +15,7 @@ from services.flight.phases import Gains, Phase
 from services.flight.station import StationKeeping
 from services.flight.trim import StationTrim
 from services.interface import decode, encode
-from services.model import orbit_period, true_lqr_gains
+from services.model import lqr_gains, orbit_period, true_lqr_gains
 
 FIT = {
     "method": "model-fit",
@@ -70,7 +70,7 @@ def test_model_fit_learns_by_orbit_6_near_the_true_gain(base):
 
 @pytest.mark.integration  # a 7-orbit mission
 def test_an_uncertain_fit_retries_on_a_growing_window():
-    dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6)
+    dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6, learn_until_orbits=7.5)
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
     assert ctrl.phase == "exploring" and ctrl.learning.learn_attempts == 2  # at orbits 6 and 6.5
@@ -80,7 +80,9 @@ def test_an_uncertain_fit_retries_on_a_growing_window():
 
 @pytest.mark.integration  # a 7-orbit mission
 def test_the_deadline_tolerance_applies_from_its_orbit():
-    dep = _fit_only("rendezvous", 7.0, fit_tolerance=1e-6, fit_deadline_orbits=6.5)
+    dep = _fit_only(
+        "rendezvous", 7.0, fit_tolerance=1e-6, fit_deadline_orbits=6.5, learn_until_orbits=7.0
+    )
     ctrl = run_in_process(dep)["fit"]["controller"]
     # refused at 6, taken at 6.5
     assert ctrl.learning.learn_attempts == 2 and ctrl.phase == "learned"
@@ -254,10 +256,12 @@ def test_a_gain_that_fails_its_validation_is_not_flown():
     dep = _faulted_before_learning(6.5)
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
-    assert ctrl.phase == "exploring" and not ctrl.learning.learned_at
+    # no retry before learn_until_orbits (6.55): the fallback, never the unvalidated gain
+    assert ctrl.phase == "fallback" and not ctrl.learning.learned_at
     assert ctrl.learning.learn_attempts == 1
-    assert np.array_equal(ctrl.K, ctrl.learner.initial_gain())
+    np.testing.assert_array_equal(ctrl.K, lqr_gains(dep, ctrl.deputy)[0])
     assert "failed validation" in out["fit"]["log"][0]
+    assert "no gain validated by orbit 6.55: flying the fallback" in out["fit"]["log"][0]
     assert "does not stabilise the model fitted without the newest" in out["fit"]["log"][0]
 
 
@@ -300,16 +304,31 @@ def test_the_model_fit_learner_carries_the_density_ratio_unless_told_not_to():
 
 
 @pytest.mark.integration  # a 7.5-orbit mission
-def test_learning_stops_at_learn_until_orbits_with_no_gain_accepted():
+@pytest.mark.integration  # a 7.5-orbit mission
+def test_with_no_gain_validated_by_learn_until_orbits_it_flies_the_lqr_fallback_to_the_end():
     dep = _fit_only("rendezvous", 7.5, fit_tolerance=1e-6, learn_until_orbits=6.6)
     out = run_in_process(dep)
     ctrl = out["fit"]["controller"]
-    # at orbits 6.01 and 6.51, not 7.01
+    # at orbits 6.01 and 6.51, not 7.01: the second attempt's retry would be past 6.6
     assert ctrl.learning.learn_attempts == 2 and not ctrl.learning.learned_at
-    assert ctrl.next_attempt == float("inf")
-    assert out["fit"]["log"][-1].endswith("no gain accepted by orbit 6.6: learning stops")
+    assert ctrl.phase == "fallback" and not ctrl.exploring and ctrl.next_attempt == float("inf")
+    assert len(ctrl.learning.fallback_at) == 1
+    assert ctrl.learning.fallback_at[0] / ctrl.orbit == pytest.approx(6.5, abs=0.02)
+    K, L = lqr_gains(dep, dep.deputy_named("fit"))
+    np.testing.assert_array_equal(ctrl.K, K)
+    np.testing.assert_array_equal(ctrl.L[:, :5], L)
+    assert not ctrl.L[:, 5:].any()  # the density ratio: a mode the nominal model has not
+    assert ctrl.source == "lqr"
+    last = out["fit"]["log"][-1]
+    assert "no gain validated by orbit 6.6: flying the fallback" in last, last
 
 
-def test_learn_until_orbits_before_learn_at_orbits_is_refused():
-    with pytest.raises(DeploymentError, match="learn_until_orbits: must be 0"):
+def test_learn_until_orbits_follows_from_the_mission_and_before_learn_at_is_refused():
+    dep = _fit_only("rendezvous", 7.5)
+    lrn = dep.deputy_named("fit").learning
+    assert lrn.learn_until_orbits == pytest.approx(6.0 + (7.5 - 6.0) / 2)
+    assert lrn.fallback == "last"
+    with pytest.raises(DeploymentError, match="learn_until_orbits: must be at least"):
         _fit_only("rendezvous", 7.0, learn_until_orbits=3.0)
+    with pytest.raises(DeploymentError, match="fallback: expected 'last' or 'lqr'"):
+        _fit_only("rendezvous", 7.0, fallback="K0")

@@ -200,6 +200,7 @@ def _row(s, i: int, final: float | None, completed: bool = True) -> dict:
             f"{name}.last_orbit_max_error_m": final,
             f"{name}.gain_error": 0.01,
             f"{name}.learned_at_orbits": 15.0 if name == "ddvi" else None,
+            f"{name}.fallback_at_orbits": None,
             f"{name}.learned": True if name == "ddvi" else None,
             f"{name}.gain_error_vs_lqr": 0.01 if name == "ddvi" else None,
             f"{name}.can_hold": True,

@@ -38,6 +38,7 @@ COMPARED = (
     "max_along_track_error_last_orbit_m",
     "learned",
     "learned_at_orbits",
+    "fallback_at_orbits",
     "gain_error",
     "gain_error_vs_lqr",
     "can_hold",
@@ -48,6 +49,7 @@ CAMPAIGN = {  # campaign column -> metric
     "last_orbit_max_error_m": "max_along_track_error_last_orbit_m",
     "learned": "learned",
     "learned_at_orbits": "learned_at_orbits",
+    "fallback_at_orbits": "fallback_at_orbits",
     "gain_error": "gain_error",
     "gain_error_vs_lqr": "gain_error_vs_lqr",
     "can_hold": "can_hold",
@@ -59,7 +61,8 @@ def _flight(table: dict, history: str) -> dict[str, dict]:
     """Per deputy of the default mission: three orbits of along-track error that grows, the
     gain records it flew and its controller's last log line.  ``history`` of the learner:
     "learned" (K0, then 1.02 x LQR from orbit 1.5), "never" (K0 to the end), "fallback"
-    (learned at orbit 1.5, its re-learning fallen back to the old gains at orbit 2.5)."""
+    (learned at orbit 1.5, its re-learning fallen back to the old gains at orbit 2.5), "lqr"
+    (K0, then no gain validated: the LQR fallback from orbit 2.5)."""
     dep = deployment_from_table(table)
     period = orbit_period(dep)
     t = np.linspace(0.0, 3 * period, 301)
@@ -73,10 +76,12 @@ def _flight(table: dict, history: str) -> dict[str, dict]:
         else:
             gains = [GainRecord(0.0, K0.tolist(), L0.tolist(), "initial", 0, False)]
             learned = GainRecord(1.5 * period, (1.02 * K).tolist(), L.tolist(), "ddvi", 9, True)
-            if history != "never":
+            if history in ("learned", "fallback"):
                 gains.append(learned)
             if history == "fallback":
                 gains.append(GainRecord(2.5 * period, learned.K, learned.L, "fallback", 9, True))
+            if history == "lqr":
+                gains.append(GainRecord(2.5 * period, K.tolist(), L.tolist(), "lqr", 0, True))
         flights[d.name] = {"t": t, "hill": hill, "gains": gains, "log": LOG}
     return flights
 
@@ -108,8 +113,9 @@ def _fake_in_process(flights: dict, monkeypatch: pytest.MonkeyPatch):
             f = flights[d.name]
             last = f["gains"][-1]
             switches = [g.t for g in f["gains"] if g.source == "ddvi"]
+            fallback = [g.t for g in f["gains"][1:] if g.source == "lqr"]
             x = f["hill"]
-            learning = SimpleNamespace(learned_at=switches)
+            learning = SimpleNamespace(learned_at=switches, fallback_at=fallback)
             ctrl = SimpleNamespace(K=np.asarray(last.K), source=last.source, learning=learning)
             out[d.name] = {
                 "t": f["t"],
@@ -128,7 +134,7 @@ def _fake_in_process(flights: dict, monkeypatch: pytest.MonkeyPatch):
     return run
 
 
-@pytest.mark.parametrize("history", ["learned", "never", "fallback"])
+@pytest.mark.parametrize("history", ["learned", "never", "fallback", "lqr"])
 def test_the_report_sweeps_and_campaigns_score_a_deputy_alike(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, history: str
 ) -> None:
@@ -169,15 +175,30 @@ def test_the_report_sweeps_and_campaigns_score_a_deputy_alike(
             continue
         learned = history == "learned"
         assert scored["learned"] is learned
-        assert scored["learned_at_orbits"] == (None if history == "never" else pytest.approx(1.5))
+        ever = history in ("learned", "fallback")
+        assert scored["learned_at_orbits"] == (pytest.approx(1.5) if ever else None)
+        fell_back = scored["fallback_at_orbits"]
+        assert fell_back == (pytest.approx(2.5) if history == "lqr" else None)
         if learned:
             assert scored["gain_error"] == pytest.approx(0.02)
             assert scored["gain_error_vs_lqr"] == pytest.approx(0.02)
             assert scored["note"] is None
+        elif history == "lqr":  # the fallback's error against K*: the nominal LQR's, 0 here
+            assert scored["gain_error"] == 0.0 and scored["gain_error_vs_lqr"] is None
+            assert scored["note"] == LOG
         else:  # not K0's error (0.1435 from the nominal K*): no gain error at all
             assert scored["gain_error"] is None and scored["gain_error_vs_lqr"] is None
             assert scored["note"] == LOG
-    if history != "learned":
+    if history == "lqr":  # said in the run's report and counted in the campaign's table
+        learner = next(d.name for d in dep.deputy if d.controller != "lqr")
+        run_md = (tmp_path / "run" / "report.md").read_text()
+        (line,) = [x for x in run_md.splitlines() if x.startswith(f"| {learner} |")]
+        assert "| fallback (LQR) at 2.50 |" in line
+        campaign = {"campaign": {"deployment": "rendezvous", "runs": 1}}
+        spec = spec_from_table(campaign, read_table, "c.toml")
+        (row,) = [x for x in stats_table(spec, [in_process]) if x.startswith("| ddvi")]
+        assert row.split(" | ")[-2:] == ["1/1", "- |"]  # fell back; can hold its slot
+    if history in ("never", "fallback"):
         learner = next(d.name for d in dep.deputy if d.controller != "lqr")
         sweep_md = markdown_table("noise", list(sweep_in_process.values()))
         (line,) = [x for x in sweep_md.splitlines() if f"| {learner} |" in x]

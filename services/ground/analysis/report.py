@@ -102,6 +102,10 @@ def _deputy_summary(
         learned_at=learned_switches(craft.gains),
         log=[text] if (text := data.last_log.get(log_topic(f"ctrl-{d.name}"))) else [],
         completed=completed,
+        # a learner's switches to the LQR's gains: its fallback (services.flight.phases)
+        fallback_at=[t * data.period for t in _switches(craft.gains, "lqr", data.period)]
+        if d.controller == "ddvi"
+        else [],
     )
     m = deputy_metrics(
         data.dep, d, outcome, K_true=s.K_true, K_lqr=s.K_lqr, cannot_hold=cannot_hold
@@ -122,6 +126,7 @@ def _deputy_summary(
         "gain_error_vs_lqr": m["gain_error_vs_lqr"],
         "learned": m["learned"],
         "learned_at_orbits": m["learned_at_orbits"],
+        "fallback_at_orbits": m["fallback_at_orbits"],
         "relearned_at_orbits": [],
         "relearning_abandoned_at_orbits": [],
         "can_hold": m["can_hold"],
@@ -256,26 +261,30 @@ def markdown(summary: dict[str, Any], figures: list[str]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, d in summary["deputies"].items():
-        learned = [d["learned_at_orbits"], *d.get("relearned_at_orbits", [])]
+        at = [d["learned_at_orbits"], *d.get("relearned_at_orbits", [])]
+        learned = [t for t in at if t is not None]
         abandoned = d.get("relearning_abandoned_at_orbits", [])
         gave_up = [f"old gains again at {t:.2f}" for t in abandoned]
+        if (fell_back := d.get("fallback_at_orbits")) is not None:
+            gave_up.append(f"fallback (LQR) at {fell_back:.2f}")
         lines.append(
             f"| {name} | {d['controller']} | {_num(d['final_along_track_error_m'])} "
             f"| {_num(d['max_along_track_error_last_orbit_m'])} | {_num(d['final_radial_m'])} "
             f"| {_num(d['max_radial_last_orbit_m'])} "
             f"| {_gain_cell(d, 'gain_error_vs_true_optimum')} "
             f"| {_gain_cell(d, 'gain_error_vs_lqr')} "
-            f"| {', '.join([*(_num(t, '.2f') for t in learned), *gave_up])} "
+            f"| {', '.join([*(_num(t, '.2f') for t in learned), *gave_up]) or '-'} "
             f"| {d['phase'] or '-'} | {(d.get('note') or '-').replace('|', '/')} |"
         )
     lines += [
         "",
         f"Gain error: |K - K*| / |K*| of the gain flown at the end against {REFERENCE}; "
         "vs nominal LQR: against the LQR gain of the nominal model (the two agree when the "
-        "truth is nominal).  Scored for an LQR deputy and a learned gain only: a learner that "
-        "flies no learned gain at the end (K0, or old gains a failed re-learning fell back "
-        "to) is not learned.  Note: why a deputy cannot hold its slot, why a learner flies no "
-        "learned gain.",
+        "truth is nominal).  Scored for an LQR deputy, a learned gain and a learner's "
+        "fallback (the nominal model's LQR gains, flown when no gain validated by "
+        "learning.learn_until_orbits): a learner that flies no learned gain at the end "
+        "(its fallback, or old gains a failed re-learning fell back to) is not learned.  "
+        "Note: why a deputy cannot hold its slot, why a learner flies no learned gain.",
     ]
     m = summary["messages"]
     tot = m["totals"]

@@ -5,11 +5,13 @@ campaigns share (:func:`deputy_metrics`).
 - learned (None for an LQR deputy): the gains flown at the end are ones the learner learned,
   not K0 while it explores, nor the old gains a failed re-learning fell back to;
 - learned at: the orbit of its first switch to learned gains (None: never);
+- fallback at: the orbit a learner took to its fallback, the nominal model's LQR gains, having
+  validated no gain (None: never; ``services.flight.phases``);
 - gain error |K - K*| / |K*| of the gain flown at the end against K*, the optimal gain of the
   truth's linear model of that run (``services.model.true_lqr_gains``), and against the nominal
-  model's LQR gain: only for an LQR deputy's gain (against K* alone) and a learned gain.  A
-  learner that flies no learned gain at the end has none (None: "not learned"), whatever it
-  flies;
+  model's LQR gain: only for an LQR deputy's gain and a learner's fallback (against K* alone)
+  and a learned gain.  A learner that flies neither at the end has none (None: "not
+  learned");
 - can hold: some attitude within its limit matches the chief's drag
   (``services.model.holding_problems``); where none does the note says so;
 - note: why the deputy cannot hold its slot, and why a learner flies no learned gain (its
@@ -58,6 +60,7 @@ METRICS = (
     "max_along_track_error_last_orbit_m",
     "learned",
     "learned_at_orbits",
+    "fallback_at_orbits",
     "gain_error",
     "gain_error_vs_lqr",
     "can_hold",
@@ -143,7 +146,8 @@ def final_error_below(metres: float) -> Success:
 class DeputyOutcome:
     """What one run produced for one deputy: sample times t (s) and |y - y_ref| at them (m),
     the gain K (1, 4) flown at the end and its source (a ``gains`` message's), every switch to
-    learned gains (s), the learner's log lines, and whether the run completed."""
+    learned gains (s), every switch to the LQR fallback (s), the learner's log lines, and
+    whether the run completed."""
 
     t: FloatArray
     along_track_error: FloatArray
@@ -152,6 +156,7 @@ class DeputyOutcome:
     learned_at: Sequence[float] = ()
     log: Sequence[str] = ()
     completed: bool = True
+    fallback_at: Sequence[float] = ()
 
 
 def scored_gain_error(K: Any, K_ref: FloatArray | None) -> float | None:
@@ -200,7 +205,8 @@ def deputy_metrics(
     learner = deputy.controller == "ddvi"  # a ROS 2-flown deputy's gains are its node's own
     period = orbit_period(dep)
     learned = outcome.source is not None and outcome.source not in NOT_LEARNED
-    scored = lqr or learned
+    falling_back = learner and outcome.source == "lqr"  # its fallback: the LQR's gains
+    scored = lqr or learned or falling_back
     if scored and K_true is None:
         K_true = reference_gains(dep, deputy)[0]
     if learned and K_lqr is None:
@@ -210,7 +216,7 @@ def deputy_metrics(
     ey = np.asarray(outcome.along_track_error, float)
     t = np.asarray(outcome.t, float)
     notes = [cannot_hold] if cannot_hold else []
-    if learner and not scored:
+    if learner and not learned:
         notes.append(short_note(outcome.log[-1]) if outcome.log else "no learning attempt")
     return {
         "completed": bool(outcome.completed),
@@ -222,6 +228,9 @@ def deputy_metrics(
         "learned_at_orbits": None
         if not learner or not outcome.learned_at
         else float(outcome.learned_at[0] / period),
+        "fallback_at_orbits": None
+        if not learner or not outcome.fallback_at
+        else float(outcome.fallback_at[0] / period),
         "gain_error": scored_gain_error(outcome.K, K_true) if scored else None,
         "gain_error_vs_lqr": scored_gain_error(outcome.K, K_lqr) if learned else None,
         "can_hold": not cannot_hold,
@@ -241,6 +250,7 @@ def inprocess_outcome(dep: Deployment, deputy: Deputy, rec: dict[str, Any]) -> D
         source=c.source,
         learned_at=list(c.learning.learned_at),
         log=list(rec.get("log", [])),
+        fallback_at=list(c.learning.fallback_at),
     )
 
 
@@ -258,7 +268,9 @@ def failed_metrics(deputy: Deputy, why: str, cannot_hold: str = "") -> dict[str,
 
 def table_cell(key: str, row: dict[str, Any]) -> Any:
     """A metric as a table prints it: "not learned" for the gain errors of a learner that
-    flies no learned gain, else the value."""
-    if key in ("gain_error", "gain_error_vs_lqr") and row.get("learned") is False:
+    flies no learned gain (but its fallback's error against K*), else the value."""
+    if key == "gain_error_vs_lqr" and row.get("learned") is False:
+        return NOT_LEARNED_TEXT
+    if key == "gain_error" and row.get("learned") is False and row.get("gain_error") is None:
         return NOT_LEARNED_TEXT
     return row.get(key)

@@ -27,7 +27,7 @@ WORST = 5  # runs listed per controller
 
 def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any]]:
     """One record per run and deputy: run, deputy, controller, final, last (m), gain error,
-    learned (None for LQR), learned_at, can_hold, note, completed, success."""
+    learned (None for LQR), learned_at, fallback_at, can_hold, note, completed, success."""
     out = []
     for r in rows:
         for col, controller in r.items():
@@ -47,6 +47,7 @@ def outcomes(rows: list[dict[str, Any]], threshold: float) -> list[dict[str, Any
                     "gain": r.get(f"{name}.gain_error"),
                     "learned": None if learned is None else bool(learned),
                     "learned_at": r.get(f"{name}.learned_at_orbits"),
+                    "fallback_at": r.get(f"{name}.fallback_at_orbits"),
                     "can_hold": can_hold is None or bool(can_hold),
                     "note": r.get(f"{name}.note"),
                     "completed": bool(r["completed"]),
@@ -92,6 +93,7 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
         "gain error p50 / p95",
         "learned",
         "learned at orbit p50 / max",
+        "fallback (LQR)",
         "cannot hold slot",
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -104,6 +106,7 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
         gain = _pct([o["gain"] for o in mine])
         learned = sum(bool(o["learned"]) for o in mine) if ctrl != "lqr" else None
         at = _pct([o["learned_at"] for o in mine])
+        fell_back = sum(o["fallback_at"] is not None for o in mine)
         infeasible = sum(not o["can_hold"] for o in mine)
         lines.append(
             f"| {ctrl} | {len(mine)} | {rate} | {final} | "
@@ -111,6 +114,7 @@ def stats_table(spec: CampaignSpec, rows: list[dict[str, Any]]) -> list[str]:
             f"{_fmt(gain[0]) if gain else '-'} / {_fmt(gain[2]) if gain else '-'} | "
             f"{'-' if learned is None else f'{learned}/{len(mine)}'} | "
             f"{f'{_fmt(at[0])} / {_fmt(at[-1])}' if at else '-'} | "
+            f"{'-' if learned is None else f'{fell_back}/{len(mine)}'} | "
             f"{infeasible or '-'} |"
         )
     return lines

@@ -29,7 +29,7 @@ from services.config import (
 from services.ground.analysis.scoring import deputy_metrics, holding_notes, inprocess_outcome
 
 MODES = ("inprocess", "distributed")
-ROWS_VERSION = 3
+ROWS_VERSION = 4
 """What a row means beyond its campaign file: raised when the same task gives another row (a
 deputy's noise drawn another way, its controller labelled another way, a deputy scored another
 way), so that ``--resume`` does not mix the two in one table."""
@@ -38,6 +38,7 @@ COLUMNS = {
     "last_orbit_max_error_m": "max_along_track_error_last_orbit_m",
     "gain_error": "gain_error",
     "learned_at_orbits": "learned_at_orbits",
+    "fallback_at_orbits": "fallback_at_orbits",
     "learned": "learned",
     "gain_error_vs_lqr": "gain_error_vs_lqr",
     "can_hold": "can_hold",
@@ -49,8 +50,9 @@ METRICS = ("controller", *COLUMNS)
 """Each deputy's columns, ``<deputy>.<metric>``: its controller, then its metrics
 (``services.ground.analysis.scoring``): |y - y_ref| at the end and its largest value over the last
 orbit (m), |K - K*| / |K*| of the gains it flies at the end against the run's true optimal gain
-K* (``services.model.true_lqr_gains``; NULL for a learner that flies no learned gain), the orbit
-it first switched to learned gains at (NULL: never), whether it flies learned gains at the end
+K* (``services.model.true_lqr_gains``; NULL for a learner that flies neither a learned gain nor
+its fallback), the orbit it first switched to learned gains at (NULL: never), the orbit it took
+to its fallback at (NULL: never), whether it flies learned gains at the end
 (NULL for LQR), the gain error against the nominal LQR gain, whether some attitude lets it hold
 its slot, and a note (why it cannot, why it flies no learned gain)."""
 

@@ -143,6 +143,7 @@ def summary_rows(point: dict[str, Any], summary: dict[str, Any]) -> list[dict[st
                 max_along_track_error_last_orbit_m=d["max_along_track_error_last_orbit_m"],
                 learned=d["learned"],
                 learned_at_orbits=d["learned_at_orbits"],
+                fallback_at_orbits=d.get("fallback_at_orbits"),
                 gain_error=d["gain_error_vs_true_optimum"],
                 gain_error_vs_lqr=d["gain_error_vs_lqr"],
                 can_hold=d["can_hold"],

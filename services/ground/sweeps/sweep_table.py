@@ -46,6 +46,7 @@ HEADERS = {
     "max_along_track_error_last_orbit_m": "last-orbit max (m)",
     "learned": "learned",
     "learned_at_orbits": "at orbit",
+    "fallback_at_orbits": "fallback (LQR) at orbit",
     "gain_error": "gain error vs true K*",
     "gain_error_vs_lqr": "vs nominal LQR",
     "dropped": "dropped",
