@@ -1,8 +1,9 @@
 """The bridge between a deployment and the mathematics: mission timing and exosystem, the
 nominal linear model and its LQR gains, the truth's linear model and its optimal gains (the
-reference a learned gain is scored against), initial states and slot holding (``mission``), and
-the truth backends behind one protocol (``truth``: the protocol and the built-in propagator;
-``basilisk``; ``backends.open_truth`` chooses).
+reference a learned gain is scored against), initial states and slot holding (``mission``), the
+re-entry predicted from the chief's drag decay (``decay``), and the truth backends behind one
+protocol (``truth``: the protocol and the built-in propagator; ``basilisk``;
+``backends.open_truth`` chooses).
 
 May import: ``ddvi_core``, ``services.config``. Not the bus, processes or tools.
 ``services.model.basilisk`` needs the optional ``basilisk`` extra and is imported only when a
@@ -10,6 +11,7 @@ deployment asks for it.
 """
 
 from services.model.backends import backend_missing, open_truth
+from services.model.decay import chief_decay, reentry_problems, reentry_warnings
 from services.model.mission import (
     IN_PLANE,
     describe_panel,
@@ -46,6 +48,7 @@ __all__ = [
     "ReentryError",
     "Truth",
     "backend_missing",
+    "chief_decay",
     "describe_panel",
     "duration",
     "exostate",
@@ -62,6 +65,8 @@ __all__ = [
     "open_truth",
     "orbit_period",
     "panel_schedule",
+    "reentry_problems",
+    "reentry_warnings",
     "reference_gains",
     "true_lqr_gains",
     "true_problem",

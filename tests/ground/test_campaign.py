@@ -295,6 +295,30 @@ def test_a_campaign_tells_the_learners_apart() -> None:
     assert groups == set(labels)
 
 
+def test_a_campaign_says_up_front_which_runs_are_predicted_to_reenter() -> None:
+    """At five times the nominal density the default mission's chief is predicted to re-enter
+    before orbit 40: each drawn run at that density is said, or the base deployment once."""
+    from services.ground.campaign import command as campaign
+
+    table = copy.deepcopy(CAMPAIGN)
+    table["overrides"] = {"run": {"orbits": 40.0}}
+    table["dispersion"] = [
+        {"key": "environment.density_factor", "distribution": "choice", "values": [1.0, 5.0]}
+    ]
+    s = spec(table)
+    tasks = {i: campaign.task(s, i, "inprocess") for i in range(6)}
+    dense = [i for i, t in tasks.items() if t["values"]["environment.density_factor"] == 5.0]
+    lines = campaign.holding_lines(s, tasks)
+    assert [int(x.split(":")[0].removeprefix("run ")) for x in lines] == dense and dense
+    assert all("the chief is predicted to re-enter" in x for x in lines)
+    table["dispersion"] = []
+    table["overrides"]["environment"] = {"density_factor": 5.0}
+    s_base = spec(table)
+    tasks = {i: campaign.task(s_base, i, "inprocess") for i in range(6)}
+    (line,) = campaign.holding_lines(s_base, tasks)
+    assert line.startswith("the base deployment: the chief is predicted to re-enter")
+
+
 def test_a_campaign_says_up_front_which_deputies_cannot_hold_their_slot(
     tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:

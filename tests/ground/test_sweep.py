@@ -169,6 +169,30 @@ def test_a_point_no_attitude_can_hold_is_stated_before_its_run(
     assert "| can hold slot |" in out and out.count("| yes | no |") == len(names)
 
 
+def test_a_point_predicted_to_reenter_is_stated_before_any_run_flies(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """realistic-nav-2x at 1.25x for 30 orbits re-enters at orbit 27.2 when flown: the sweep
+    predicts it before the first run flies, for that point only."""
+    import services.ground.sweeps.sweep as sweep_module
+
+    class StopError(Exception):
+        pass
+
+    def stop(point, dep):
+        raise StopError(capsys.readouterr().err)
+
+    monkeypatch.setattr(sweep_module, "inprocess_rows", stop)
+    argv = ["sweep", "noise", "realistic-nav-2x", "--values", "1", "--mismatch", "1", "1.25"]
+    with pytest.raises(StopError) as said:
+        main([*argv, "--orbits", "30", "--in-process", "--output", str(tmp_path)])
+    (line,) = [x for x in str(said.value).splitlines() if "re-enter" in x]
+    assert line.startswith(
+        "ddvi sweep: noise = 1 m, mismatch = 1.25: warning: the chief is predicted to re-enter"
+    )
+    assert "of the mission's 30" in line
+
+
 def test_noisy_table_sets_noise_and_scales_the_truth_as_mismatch_2x_does() -> None:
     table = read_table(None)
     dep = deployment_from_table(noisy_table(table, 1.0, 2.0))

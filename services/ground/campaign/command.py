@@ -40,7 +40,7 @@ from services.ground.campaign.dispersions import (
 from services.ground.campaign.run import MODES, execute
 from services.ground.campaign.store import ResultStore, read_meta, read_rows
 from services.ground.launch import lifecycle
-from services.model import holding_warnings
+from services.model import holding_warnings, reentry_warnings
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -95,15 +95,19 @@ def task(spec: CampaignSpec, index: int, mode: str, keep: str | None = None) -> 
 
 
 def holding_lines(spec: CampaignSpec, tasks: dict[int, dict[str, Any]]) -> list[str]:
-    """Why deputies cannot hold their slot (``services.model.holding_warnings``): the base
-    deployment's, once, when it is infeasible; else each drawn run's that is."""
-    if base := holding_warnings(deployment_from_table(spec.base)):
-        return [f"the base deployment: {why}" for why in base]
-    return [
-        f"run {i}: {why}"
-        for i, t in tasks.items()
-        for why in holding_warnings(deployment_from_table(t["table"]))
-    ]
+    """Why deputies cannot hold their slot (``services.model.holding_warnings``), then why the
+    formation is predicted to re-enter before the mission ends
+    (``services.model.reentry_warnings``): of each, the base deployment's, once, when it has
+    one; else each drawn run's that has."""
+    base = deployment_from_table(spec.base)
+    runs = {i: deployment_from_table(t["table"]) for i, t in tasks.items()}
+    lines: list[str] = []
+    for warnings in (holding_warnings, reentry_warnings):
+        if said := warnings(base):
+            lines += [f"the base deployment: {why}" for why in said]
+        else:
+            lines += [f"run {i}: {why}" for i, dep in runs.items() for why in warnings(dep)]
+    return lines
 
 
 def _say_holding(spec: CampaignSpec, tasks: dict[int, dict[str, Any]]) -> None:

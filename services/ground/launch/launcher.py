@@ -45,7 +45,7 @@ from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_
 from services.ground.launch.supervisor import Supervisor
 from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
 from services.interface.topics import ROS2_GATEWAY, fault_topic, log_topic
-from services.model import holding_warnings
+from services.model import holding_warnings, reentry_warnings
 
 REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
 REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
@@ -138,7 +138,7 @@ class Launcher:
         self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
         for warning in warnings:
             self.say(f"warning: {warning}")
-        for warning in holding_warnings(self.dep):
+        for warning in holding_warnings(self.dep) + reentry_warnings(self.dep):
             self.say(f"warning: {warning}")
         if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
             self.say(

@@ -66,7 +66,7 @@ from services.ground.sweeps.sweep_table import (
     write_table,
 )
 from services.interface import topics
-from services.model import holding_problems
+from services.model import holding_problems, reentry_problems
 
 __all__ = [
     "VELOCITY_NOISE_RATIO",
@@ -201,13 +201,14 @@ def inprocess_rows(point: dict[str, Any], dep: Deployment) -> list[dict[str, Any
 def infeasible_points(
     runs: list[tuple[dict[str, Any], dict[str, Any], str]],
 ) -> list[tuple[dict[str, Any], str]]:
-    """(point, why) of every deputy of the sweep's runs that cannot hold its slot, in run
-    order (``services.model.holding_problems``)."""
-    return [
-        (point, text)
-        for point, table, _ in runs
-        for _, text in holding_problems(deployment_from_table(table))
-    ]
+    """(point, why) of every deputy of the sweep's runs that cannot hold its slot
+    (``services.model.holding_problems``), and of every run whose formation is predicted to
+    re-enter before it ends (``services.model.reentry_problems``), in run order."""
+    out = []
+    for point, table, _ in runs:
+        dep = deployment_from_table(table)
+        out += [(point, text) for _, text in holding_problems(dep) + reentry_problems(dep)]
+    return out
 
 
 def _point_text(kind: str, point: dict[str, Any]) -> str:
@@ -329,8 +330,8 @@ def sweep(
             file=sys.stderr,
             flush=True,
         )
-    # up front: which points fly a deputy that no attitude lets hold its slot, or that ends
-    # before a learner learns
+    # up front: which points fly a deputy that no attitude lets hold its slot, a formation
+    # predicted to re-enter, or that end before a learner learns
     for point, why in infeasible_points(runs) + unlearned_points(runs):
         print(
             f"ddvi sweep: {_point_text(kind, point)}: warning: {why}", file=sys.stderr, flush=True
