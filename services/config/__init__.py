@@ -10,6 +10,7 @@ Not the bus (so not zenoh), models, processes or tools.
 
 from services.config.atmosphere import parse_epoch
 from services.config.deployment import (
+    Chief,
     Deployment,
     DeploymentError,
     Deputy,
@@ -33,6 +34,7 @@ from services.config.validation import (
 from services.config.wiring import check_kill, check_link_fault, link_from_params
 
 __all__ = [
+    "Chief",
     "Deployment",
     "DeploymentError",
     "Deputy",

@@ -26,6 +26,7 @@ __all__ = [
     "ROS2_TOPICS",
     "Atmosphere",
     "Bus",
+    "Chief",
     "Deployment",
     "DeploymentError",
     "Deputy",
@@ -130,6 +131,16 @@ class Orbit:
     raan: float = 20.0
     argp: float = 30.0
     f: float = 20.0
+
+
+@dataclass(frozen=True)
+class Chief(Orbit):
+    """The chief: its osculating orbit and its true facet area over the nominal design's
+    (``area_factor``, as a deputy's: a non-cooperative object whose ballistic coefficient
+    differs from the model's).  The truth flies it; the controllers' nominal model never
+    knows it."""
+
+    area_factor: float = 1.0  # truth facet area / nominal
 
 
 @dataclass(frozen=True)
@@ -301,7 +312,7 @@ class Deployment:
     environment: Environment = field(default_factory=Environment)
     atmosphere: Atmosphere = field(default_factory=Atmosphere)
     spacecraft: SpacecraftSpec = field(default_factory=SpacecraftSpec)
-    chief: Orbit = field(default_factory=Orbit)
+    chief: Chief = field(default_factory=Chief)
     deputy: list[Deputy] = field(default_factory=list)
     link: list[Link] = field(default_factory=list)
     restart: list[Restart] = field(default_factory=list)

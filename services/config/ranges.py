@@ -27,7 +27,7 @@ ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za
 RUN_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
 MAX_POSITION_BIAS = 1e7  # m: a navigation bias, the deputy's or a bias fault's
 MAX_VELOCITY_BIAS = 1e4  # m/s
-MAX_AREA_FACTOR = 100.0  # a facet's true area over the nominal: the deputy's or a panel fault's
+MAX_AREA_FACTOR = 100.0  # a facet's true area over the nominal: a craft's or a panel fault's
 
 
 def within(where: str, value: float, lo: float, hi: float, *, open_lo: bool = False) -> None:
@@ -116,6 +116,7 @@ def check_body_ranges(dep: Deployment) -> None:
     within("spacecraft.cd", sc.cd, 0.0, 10.0, open_lo=True)
     within("spacecraft.normal_angle", sc.normal_angle, 0.0, 90.0, open_lo=True)
     check_orbit("chief", dep.chief, env.min_altitude)
+    within("chief.area_factor", dep.chief.area_factor, 0.0, MAX_AREA_FACTOR, open_lo=True)
 
 
 def _check_deputy_ranges(w: str, d: Deputy, dep: Deployment) -> None:

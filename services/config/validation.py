@@ -101,6 +101,7 @@ def check_bodies(dep: Deployment) -> None:
     for key in ("rho0", "scale_height"):
         _positive(f"atmosphere.{key}", getattr(dep.atmosphere, key))
     _positive("chief.a", dep.chief.a)
+    _positive("chief.area_factor", dep.chief.area_factor)
     if not 0 <= dep.chief.e < 1:
         raise DeploymentError(f"chief.e: expected 0 <= e < 1, got {dep.chief.e}")
 

@@ -6,7 +6,8 @@ The deputies hold their slots by matching the chief's drag (``holding_margin``),
 formation decays with the chief: its decay is the formation's.  The chief flies Hill-pointing
 with its facet normal at spacecraft.normal_angle in the body x-y plane, so on a circular orbit
 the truth's drag -1/2 rho (C_D A max(0, n.v) / m) v (``ddvi_core.truth``) exposes
-A sin(normal_angle) of its facet: B = C_D A sin(normal_angle) / m.
+A sin(normal_angle) of its facet: B = C_D A sin(normal_angle) / m, A the chief's true area
+(spacecraft.area times chief.area_factor).
 
 The density is the truth's, averaged over the chief's first revolution as the truth's gravity
 flies it (16 points): the exponential profile times environment.density_factor, or with
@@ -98,7 +99,8 @@ def chief_decay(dep: Deployment) -> Decay | None:
     env, sc = dep.environment, dep.spacecraft
     if not env.drag or env.density_factor <= 0.0:
         return None
-    ballistic = sc.cd * sc.area * max(0.0, math.sin(math.radians(sc.normal_angle))) / sc.mass
+    area = sc.area * dep.chief.area_factor  # the chief's true facet area
+    ballistic = sc.cd * area * max(0.0, math.sin(math.radians(sc.normal_angle))) / sc.mass
     ring = _revolution(dep)
     return drag_decay(
         float(np.linalg.norm(ring, axis=1).mean()),

@@ -114,7 +114,7 @@ def true_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
     """The truth's own linear model of the deputy's run: the nominal model rebuilt with the
     truth's density (rho0 x environment.density_factor) and the deputy's true facet area
     (area x its area_factor), and D carrying the constant differential drag between the
-    deputy and the chief (whose true area is the nominal one) in the along-track row.  The
+    deputy and the chief (its true area: area x chief.area_factor) in the along-track row.  The
     reference a learned gain is scored against; nobody flies it.  At the chief's initial
     altitude and before any panel fault.  Raises ValueError when the truth has no drag (no
     input, so no optimal gain)."""
@@ -131,7 +131,8 @@ def true_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
     )
     pr = rendezvous_problem(params)
     beta_d, _ = drag_sensitivity(params.mass, params.area, params.cd, params.normal_angle)
-    beta_c, _ = drag_sensitivity(nominal.mass, nominal.area, nominal.cd, nominal.normal_angle)
+    chief_area = nominal.area * dep.chief.area_factor
+    beta_c, _ = drag_sensitivity(nominal.mass, chief_area, nominal.cd, nominal.normal_angle)
     v = params.mean_motion * params.a_chief
     D = pr.D.copy()
     D[3, 0] -= 0.5 * params.density * v**2 * (beta_d - beta_c)
@@ -197,10 +198,11 @@ def holding_margin(
     normal_angle: float | None = None,
 ) -> float:
     """How far the deputy's truth drag can be raised above the chief's, as a fraction of the
-    chief's: max over |sigma3| <= limit of f A sin(alpha_d + phi) / (A sin alpha) - 1, with
+    chief's: max over |sigma3| <= limit of f A sin(alpha_d + phi) / (f_c A sin alpha) - 1, with
     phi = 4 atan(sigma3) (the facet geometry of ``ddvi_core.models.drag_sensitivity``), f the
     deputy's area factor and alpha_d its facet normal angle (both default to the deployment's:
-    pass a panel fault's to ask about after it).  Below zero, no attitude makes the deputy's
+    pass a panel fault's to ask about after it), f_c the chief's true area factor
+    (``chief.area_factor``).  Below zero, no attitude makes the deputy's
     drag match the chief's: it cannot hold a slot, and the along-track error grows whatever
     the controller does."""
     alpha = math.radians(dep.spacecraft.normal_angle)
@@ -212,7 +214,7 @@ def holding_margin(
         if alpha_d - phi <= math.pi / 2 <= alpha_d + phi
         else max(math.sin(alpha_d + phi), math.sin(alpha_d - phi))
     )
-    return factor * best / math.sin(alpha) - 1.0
+    return factor * best / (dep.chief.area_factor * math.sin(alpha)) - 1.0
 
 
 def facet_normal(angle: float) -> tuple[float, float, float]:
@@ -251,12 +253,14 @@ def holding_problems(dep: Deployment) -> list[tuple[str, str]]:
     then, in time order, one that falls below zero after a panel fault (panel faults of a
     deputy add up: a later fault changes only what it gives).  Warnings, not errors: such a
     mission still flies, its along-track error growing."""
+    chief = dep.chief.area_factor
+    against = "chief's" if chief == 1.0 else f"chief's (its area factor {chief:g})"
     problems = [
         (
             d.name,
             f"deputy {d.name!r} cannot hold a slot: its largest drag (area factor "
             f"{d.area_factor:g}, |sigma3| <= {d.attitude_limit:g}) is {-margin:.0%} below the "
-            "chief's, so its along-track error will grow",
+            f"{against}, so its along-track error will grow",
         )
         for d in dep.deputy
         if (margin := holding_margin(dep, d)) < 0

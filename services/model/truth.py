@@ -31,11 +31,14 @@ class ReentryError(RuntimeError):
 
 
 def truth_craft(dep: Deployment) -> list[Spacecraft]:
-    """The truth's spacecraft: the nominal design, each deputy's facet area times its
-    area_factor; facet normal in the body x-y plane."""
+    """The truth's spacecraft: the nominal design, the chief's facet area and each deputy's
+    times its area_factor; facet normal in the body x-y plane."""
     sc = dep.spacecraft
     normal = facet_normal(sc.normal_angle)
-    craft = [Spacecraft(mass=sc.mass, area=sc.area, cd=sc.cd, normal_B=normal)]
+    chief = Spacecraft(
+        mass=sc.mass, area=sc.area * dep.chief.area_factor, cd=sc.cd, normal_B=normal
+    )
+    craft = [chief]
     for d in dep.deputy:
         craft.append(
             Spacecraft(mass=sc.mass, area=sc.area * d.area_factor, cd=sc.cd, normal_B=normal)

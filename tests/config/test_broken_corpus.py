@@ -52,6 +52,7 @@ BAD_VALUES: dict[str, list[Any]] = {
     "chief.a": [1000.0, 6.4e6, 1e12, NAN],
     "chief.e": [1.5, -0.1, 1.0],
     "chief.i": [200.0],
+    "chief.area_factor": [0.0, -1.0, NAN, 1e9],
     "deputy.0.orbit.e": [1.5],
     "deputy.0.orbit.a": [1000.0],
     "deputy.0.y_ref": [NAN],
