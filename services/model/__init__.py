@@ -1,9 +1,9 @@
 """The bridge between a deployment and the mathematics: mission timing and exosystem, the
-nominal linear model and its LQR gains, the truth's linear model and its optimal gains (the
-reference a learned gain is scored against), initial states and slot holding (``mission``), the
-re-entry predicted from the chief's drag decay (``decay``), and the truth backends behind one
-protocol (``truth``: the protocol and the built-in propagator; ``basilisk``;
-``backends.open_truth`` chooses).
+nominal linear model and its LQR gains, initial states and slot holding (``mission``), the
+truth's linear model and its optimal gains (the reference a learned gain is scored against:
+``reference``), the re-entry predicted from the chief's drag decay (``decay``), and the truth
+backends behind one protocol (``truth``: the protocol and the built-in propagator;
+``basilisk``; ``backends.open_truth`` chooses).
 
 May import: ``ddvi_core``, ``services.config``. Not the bus, processes or tools.
 ``services.model.basilisk`` needs the optional ``basilisk`` extra and is imported only when a
@@ -11,7 +11,12 @@ deployment asks for it.
 """
 
 from services.model.backends import backend_missing, open_truth
-from services.model.decay import chief_decay, reentry_problems, reentry_warnings
+from services.model.decay import (
+    chief_decay,
+    orbit_mean_density,
+    reentry_problems,
+    reentry_warnings,
+)
 from services.model.mission import (
     IN_PLANE,
     describe_panel,
@@ -29,10 +34,8 @@ from services.model.mission import (
     on_grid,
     orbit_period,
     panel_schedule,
-    reference_gains,
-    true_lqr_gains,
-    true_problem,
 )
+from services.model.reference import reference_gains, true_lqr_gains, true_problem
 from services.model.truth import (
     BuiltinTruth,
     ReentryError,
@@ -63,6 +66,7 @@ __all__ = [
     "nominal_problem",
     "on_grid",
     "open_truth",
+    "orbit_mean_density",
     "orbit_period",
     "panel_schedule",
     "reentry_problems",

@@ -34,7 +34,13 @@ from ddvi_core.decay import Decay, drag_decay
 from services.config import Deployment
 from services.model.mission import duration, initial_states, orbit_period
 
-__all__ = ["RING_POINTS", "chief_decay", "reentry_problems", "reentry_warnings"]
+__all__ = [
+    "RING_POINTS",
+    "chief_decay",
+    "orbit_mean_density",
+    "reentry_problems",
+    "reentry_warnings",
+]
 
 RING_POINTS = 16
 """Points of the chief's first revolution the density is averaged over."""
@@ -90,6 +96,29 @@ def _density(dep: Deployment, ring: NDArray[np.float64]) -> Callable[[float, flo
         return float(np.mean(msis.density(np.full(points, t), r)))
 
     return rho_bar
+
+
+def _circle(dep: Deployment) -> NDArray[np.float64]:
+    """(RING_POINTS, 3) points evenly around the chief's orbit plane at its initial
+    semi-major axis (a circle: no J2 swing), m."""
+    from ddvi_core.orbit import elements_to_rv
+
+    c = dep.chief
+    angles = 360.0 * np.arange(RING_POINTS) / RING_POINTS
+    args = (math.radians(c.i), math.radians(c.raan), math.radians(c.argp))
+    return np.array([elements_to_rv(c.a, 0.0, *args, math.radians(f))[0] for f in angles])
+
+
+def orbit_mean_density(dep: Deployment, dh: float = 1e3) -> tuple[float, float]:
+    """The truth's density averaged around the chief's orbit plane at its initial semi-major
+    axis at time 0, kg/m^3, and its local scale height there, m (from the averages ``dh`` m
+    below and above): the exponential profile times environment.density_factor, or NRLMSIS's
+    at the epoch.  What the truth's linear model (``services.model.mission.true_problem``)
+    takes for its density."""
+    rho_bar = _density(dep, _circle(dep))
+    a = dep.chief.a
+    low, high = rho_bar(0.0, a - dh), rho_bar(0.0, a + dh)
+    return rho_bar(0.0, a), 2.0 * dh / math.log(low / high)
 
 
 def chief_decay(dep: Deployment) -> Decay | None:

@@ -3,12 +3,12 @@
 One place for what several services must agree on: the chief's mean motion, the exosystem
 (v = [1, cos u, sin u, cos 2u, sin 2u] with u = u0 + n t the chief's mean argument of latitude),
 the nominal linear model a deputy's controller is given, the truth's initial states, and
-whether a deputy's drag can hold its slot.  The truth backends are ``services.model.truth``.
+whether a deputy's drag can hold its slot.  The truth's own linear model is
+``services.model.reference``; the truth backends are ``services.model.truth``.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 from typing import TYPE_CHECKING
 
@@ -19,8 +19,6 @@ from ddvi_core.constants import MU_EARTH
 from ddvi_core.orbit import elements_to_rv
 from ddvi_core.relnav import relative_state
 from services.config import Deployment, Deputy, Orbit
-
-log = logging.getLogger("ddvi.model")
 
 if TYPE_CHECKING:
     from ddvi_core.models import DragRendezvous
@@ -95,7 +93,7 @@ def nominal_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
     return rendezvous_problem(nominal_params(dep, deputy))
 
 
-def _optimal_gains(pr: RegulationProblem) -> tuple[NDArray, NDArray]:
+def optimal_gains(pr: RegulationProblem) -> tuple[NDArray, NDArray]:
     """K (1,4) and L (1,5): the Riccati gain and the regulator feedforward of ``pr``."""
     from ddvi_core.lqr import solve_lqr
     from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
@@ -107,57 +105,7 @@ def _optimal_gains(pr: RegulationProblem) -> tuple[NDArray, NDArray]:
 
 def lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
     """K (1,4) and L (1,5) of the model-based baseline from the nominal model."""
-    return _optimal_gains(nominal_problem(dep, deputy))
-
-
-def true_problem(dep: Deployment, deputy: Deputy) -> RegulationProblem:
-    """The truth's own linear model of the deputy's run: the nominal model rebuilt with the
-    truth's density (rho0 x environment.density_factor) and the deputy's true facet area
-    (area x its area_factor), and D carrying the constant differential drag between the
-    deputy and the chief (its true area: area x chief.area_factor) in the along-track row.  The
-    reference a learned gain is scored against; nobody flies it.  At the chief's initial
-    altitude and before any panel fault.  Raises ValueError when the truth has no drag (no
-    input, so no optimal gain)."""
-    import dataclasses
-
-    from ddvi_core.models import drag_sensitivity, rendezvous_problem
-
-    if not dep.environment.drag:
-        raise ValueError("the truth has no drag (environment.drag = false): no optimal gain")
-    nominal = nominal_params(dep, deputy)
-    params = nominal.with_(
-        rho0=nominal.rho0 * dep.environment.density_factor,
-        area=nominal.area * deputy.area_factor,
-    )
-    pr = rendezvous_problem(params)
-    beta_d, _ = drag_sensitivity(params.mass, params.area, params.cd, params.normal_angle)
-    chief_area = nominal.area * dep.chief.area_factor
-    beta_c, _ = drag_sensitivity(nominal.mass, chief_area, nominal.cd, nominal.normal_angle)
-    v = params.mean_motion * params.a_chief
-    D = pr.D.copy()
-    D[3, 0] -= 0.5 * params.density * v**2 * (beta_d - beta_c)
-    return dataclasses.replace(pr, D=D, name="rendezvous-truth")
-
-
-def true_lqr_gains(dep: Deployment, deputy: Deputy) -> tuple[NDArray, NDArray]:
-    """K* (1,4) and L* (1,5): the optimal gains of :func:`true_problem`, the reference every
-    learned gain is scored against (equal to :func:`lqr_gains` when the truth is nominal)."""
-    return _optimal_gains(true_problem(dep, deputy))
-
-
-def reference_gains(
-    dep: Deployment, deputy: Deputy
-) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
-    """K* (1, 4) and L* (1, 5) of the truth's linear model of ``deputy``'s run
-    (:func:`true_lqr_gains`), or (None, None) when it has none (no drag in the truth, or no
-    stabilising solution): what a learned gain is scored against, and what the live view and
-    ROS 2 show beside the flown gains."""
-    try:
-        K, L = true_lqr_gains(dep, deputy)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        log.warning("no optimal gain of the truth's model for %s: %s", deputy.name, exc)
-        return None, None
-    return np.asarray(K), np.asarray(L)
+    return optimal_gains(nominal_problem(dep, deputy))
 
 
 def navigation_state(

@@ -67,6 +67,7 @@ def test_truth_backends_do_not_import_each_other_in_a_cycle() -> None:
     assert _imports("mission") == set()
     assert _imports("msis") == set()
     assert _imports("decay") == {"mission", "msis"}
+    assert _imports("reference") == {"mission", "decay"}
     assert _imports("truth") == {"mission", "msis"}
     assert _imports("basilisk") == {"mission", "truth"}
     assert _imports("backends") == {"truth", "basilisk"}

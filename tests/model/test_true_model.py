@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from services.config import deployment_from_table, load_deployment, read_table
-from services.model import lqr_gains, nominal_problem, true_lqr_gains, true_problem
+from services.model import (
+    lqr_gains,
+    nominal_problem,
+    orbit_mean_density,
+    true_lqr_gains,
+    true_problem,
+)
 
 # K* of the truth's linear model of deployments/mismatch-2x.toml (truth density and the
 # deputies' facet area 2x the nominal): the Riccati gain at 4x the nominal B.
@@ -52,3 +58,38 @@ def test_no_drag_in_the_truth_has_no_optimal_gain() -> None:
     dep = deployment_from_table(table, "test")
     with pytest.raises(ValueError, match="no drag"):
         true_lqr_gains(dep, dep.deputy[0])
+
+
+def test_under_nrlmsis_the_true_model_takes_the_orbit_mean_density_and_its_scale_height() -> None:
+    from ddvi_core.constants import R_EARTH
+    from services.model.msis import MsisDensity
+
+    dep = load_deployment("msis")
+    deputy = dep.deputy[0]
+    rho, H = orbit_mean_density(dep)
+    # NRLMSIS's own density at 16 points around the chief's orbit plane at time 0
+    angles = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    raan, inc = np.radians(dep.chief.raan), np.radians(dep.chief.i)
+    u = angles + np.radians(dep.chief.argp)
+    r = dep.chief.a * np.column_stack(
+        (
+            np.cos(raan) * np.cos(u) - np.sin(raan) * np.sin(u) * np.cos(inc),
+            np.sin(raan) * np.cos(u) + np.cos(raan) * np.sin(u) * np.cos(inc),
+            np.sin(u) * np.sin(inc),
+        )
+    )
+    direct = MsisDensity.from_deployment(dep).density(np.zeros(16), r).mean()
+    assert rho == pytest.approx(direct, rel=1e-9)
+    assert 30e3 < H < 80e3  # NRLMSIS at 300 km, not the nominal model's 8 km
+    pr, pr0 = true_problem(dep, deputy), nominal_problem(dep, deputy)
+    ratio = rho / dep.atmosphere.rho0 * np.exp((dep.chief.a - R_EARTH - 300e3) / 8e3)
+    assert pr.B[3, 0] == pytest.approx(ratio * pr0.B[3, 0], rel=1e-9)  # the input: the density
+    assert pr.A[3, 0] != pytest.approx(pr0.A[3, 0], rel=0.1)  # the gradient: its scale height
+    K_true, _ = true_lqr_gains(dep, deputy)
+    K, _ = lqr_gains(dep, deputy)
+    assert not np.allclose(K_true, K, rtol=1e-3)
+    # the exponential truth is untouched by it: K* of a nominal truth is the LQR's
+    exp = deployment_from_table({**read_table("msis"), "atmosphere": {}})
+    np.testing.assert_allclose(
+        true_lqr_gains(exp, exp.deputy[0])[0], lqr_gains(exp, exp.deputy[0])[0]
+    )
