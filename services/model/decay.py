@@ -157,7 +157,7 @@ def reentry_problems(dep: Deployment) -> list[tuple[str, str]]:
             "chief",
             f"the chief is predicted to re-enter (fall below environment.min_altitude = "
             f"{floor_km:g} km) at about orbit {orbit:.1f} of the mission's {dep.run.orbits:g}, "
-            "from the truth's drag decay: the run will end early; shorten run.orbits below "
+            "from the truth's drag decay: the run will end early; shorten run.orbits to at most "
             f"{math.floor(orbit):d}, or raise the orbit or lower the density",
         )
     ]

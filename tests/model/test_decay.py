@@ -35,7 +35,7 @@ def test_the_2_5x_mission_of_30_orbits_is_warned_of() -> None:
     orbit = float(re.search(r"at about orbit (\d+\.\d) of the mission's 30,", text)[1])
     assert 26.0 <= orbit <= 27.2
     assert "environment.min_altitude = 150 km" in text
-    assert f"shorten run.orbits below {int(orbit)}" in text
+    assert f"shorten run.orbits to at most {int(orbit)}" in text
     assert reentry_warnings(dep) == [text]
 
 
