@@ -175,18 +175,22 @@ def test_stuck_panel_is_detected_and_the_learner_switches_to_new_gains() -> None
     assert ddvi.L.shape == (1, 6) and ddvi.watch.detector is not None  # re-armed
 
 
-def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
+@pytest.mark.parametrize("fallback", ["last", "lqr"])
+def test_relearning_gives_up_and_flies_its_fallback(fallback: str) -> None:
     """After ``relearn_max_attempts`` re-learning attempts that give no gains, the controller
-    stops exploring on K0 and flies the gains it learned before the detection again (with the
-    exostate they were learned on), labelled "fallback", detector off; until then each failure
-    schedules a retry ``retry_orbits`` later."""
+    stops exploring on K0 and flies its fallback, detector off: with learning.fallback =
+    "last" the gains it learned before the detection again (with the exostate they were
+    learned on), labelled "fallback"; with "lqr" the nominal model's LQR gains (phase
+    "fallback").  Until then each failure schedules a retry ``retry_orbits`` later."""
     from types import SimpleNamespace
 
     from services.flight.control import Controller
     from services.flight.phases import Gains, Phase
+    from services.model import lqr_gains
 
     table = read_table("panel-fault")
     table["deputy"][1]["learning"]["relearn_max_attempts"] = 3
+    table["deputy"][1]["learning"]["fallback"] = fallback
     dep = deployment_from_table(table)
     ctrl = Controller(dep, "ddvi")
     K, L = np.array([[-0.02, 4e-4, -0.9, -9.0]]), np.full((1, 5), 1e-3)
@@ -206,9 +210,19 @@ def test_relearning_gives_up_and_flies_the_old_gains_again() -> None:
         if attempt < 3:
             assert log.endswith("exploring on") and ctrl.phase == "relearning"
             assert ctrl.next_attempt == pytest.approx(t + period)
-    assert "re-learning abandoned after 3 attempts" in log and "learned at t = 1000 s" in log
-    assert ctrl.phase == "learned" and ctrl.source == "fallback" and not ctrl.exploring
-    assert ctrl.K is K and ctrl.L is L and not ctrl.density_mode and ctrl.watch.detector is None
+    assert "re-learning abandoned after 3 attempts" in log
+    assert not ctrl.exploring and not ctrl.density_mode and ctrl.watch.detector is None
     assert ctrl.learning.abandoned_at == [t] and ctrl.collector is collector
+    if fallback == "last":
+        assert "learned at t = 1000 s" in log and not ctrl.learning.fallback_at
+        assert ctrl.phase == "learned" and ctrl.source == "fallback"
+        assert ctrl.K is K and ctrl.L is L
+    else:
+        assert "flying the fallback, the nominal model's LQR gains" in log
+        assert ctrl.phase == "fallback" and ctrl.source == "lqr"
+        assert ctrl.learning.fallback_at == [t] and ctrl.converged
+        K_lqr, L_lqr = lqr_gains(dep, ctrl.deputy)
+        np.testing.assert_array_equal(ctrl.K, K_lqr)
+        np.testing.assert_array_equal(ctrl.L, L_lqr)  # the exostate of before: 5 elements
     u = ctrl.command(t, np.zeros(4), np.ones(5), dep.chief.a - R_EARTH)
     assert np.isfinite(u)  # flies: the exostate is the 5-element one L was learned on

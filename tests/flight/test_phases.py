@@ -14,7 +14,8 @@ from services.flight.relearning import Relearning
 
 K0 = Gains(np.zeros((1, 4)), np.zeros((1, 2)), "initial")
 LEARNED = Gains(np.ones((1, 4)), np.ones((1, 2)), "ddvi")
-FLOWN = {Phase.LQR: Gains(K0.K, K0.L, "lqr"), Phase.EXPLORING: K0, Phase.RELEARNING: K0}
+LQR = Gains(K0.K, K0.L, "lqr")
+FLOWN = {Phase.LQR: LQR, Phase.EXPLORING: K0, Phase.RELEARNING: K0, Phase.FALLBACK: LQR}
 SCHEDULE = Schedule(collect_from=0.0, next_attempt=1000.0)
 BEFORE = Relearning(LEARNED.K, LEARNED.L, (), 500.0, None, (20, 20), 600.0, 400.0)
 
@@ -48,6 +49,19 @@ def test_a_learner_explores_learns_relearns_and_learns_again() -> None:
         assert phases.schedule is schedule and phases.before is before
 
 
+@pytest.mark.parametrize("start", [Phase.EXPLORING, Phase.RELEARNING])
+def test_a_learner_with_no_gain_validated_falls_back_to_the_lqr_gains_for_good(
+    start: Phase,
+) -> None:
+    phases = _machine(start)
+    phases.move(Phase.FALLBACK, LQR)
+    assert phases.current is Phase.FALLBACK and phases.gains is LQR
+    assert phases.converged and not phases.exploring and phases.schedule is None
+    for to in Phase:  # no move out: only a restart explores again
+        with pytest.raises(PhaseTransitionError, match="from fallback it may move to: none"):
+            phases.move(to, *_args(to))
+
+
 def test_an_exploring_phase_has_a_schedule_and_only_re_learning_keeps_what_flew_before() -> None:
     with pytest.raises(PhaseTransitionError, match="phase exploring needs a learning schedule"):
         PhaseMachine(Phase.EXPLORING, K0)
@@ -72,6 +86,9 @@ def test_an_exploring_phase_has_a_schedule_and_only_re_learning_keeps_what_flew_
         (Phase.LEARNED, Phase.EXPLORING),
         (Phase.LEARNED, Phase.LEARNED),
         (Phase.RELEARNING, Phase.EXPLORING),
+        (Phase.FALLBACK, Phase.EXPLORING),
+        (Phase.FALLBACK, Phase.LEARNED),
+        (Phase.LEARNED, Phase.FALLBACK),
     ],
 )
 def test_an_illegal_move_raises_and_leaves_the_phase(start: Phase, to: Phase) -> None:
@@ -83,7 +100,13 @@ def test_an_illegal_move_raises_and_leaves_the_phase(start: Phase, to: Phase) ->
 
 @pytest.mark.parametrize(
     ("phase", "source"),
-    [(Phase.LQR, "ddvi"), (Phase.EXPLORING, "lqr"), (Phase.LEARNED, "initial")],
+    [
+        (Phase.LQR, "ddvi"),
+        (Phase.EXPLORING, "lqr"),
+        (Phase.LEARNED, "initial"),
+        (Phase.FALLBACK, "ddvi"),
+        (Phase.FALLBACK, "initial"),
+    ],
 )
 def test_a_phase_flies_only_gains_of_its_own_source(phase: Phase, source: str) -> None:
     with pytest.raises(PhaseTransitionError, match=f"phase {phase} cannot fly '{source}' gains"):
