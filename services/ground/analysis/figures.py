@@ -35,7 +35,7 @@ from services.ground.analysis.rundata import (
     GainRecord,
     RunData,
 )
-from services.ground.analysis.scoring import learned_switches
+from services.ground.analysis.scoring import fallback_switches, learned_switches
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -226,7 +226,8 @@ def exploring_spans(gains: list[GainRecord], end: float) -> list[tuple[float, fl
 
 def sigma3_figure(canvas: Canvas) -> Figure:
     """Each deputy's commanded sigma3 as flown (a zero-order hold), the times each learner
-    explored shaded, each switch to learned gains a vertical line, and the attitude limits."""
+    explored shaded, each switch to learned gains a vertical line (dashed; to its fallback,
+    dotted), and the attitude limits."""
     data, P = canvas.data, canvas.period
     fig = canvas.figure("sigma3.png", (10, 4.8), Margins(right=2.1))  # the legend at the right
     ax = fig.add_subplot()
@@ -245,6 +246,10 @@ def sigma3_figure(canvas: Canvas) -> Figure:
         for k, t in enumerate(learned_switches(craft.gains)):
             label = f"{name} learned" if k == 0 else None
             ax.axvline(t / P, color=color, ls="--", lw=1.2, label=label)
+        if s.deputy.controller == "ddvi":
+            for k, t in enumerate(fallback_switches(craft.gains)):
+                label = f"{name} fallback (LQR)" if k == 0 else None
+                ax.axvline(t / P, color=color, ls=":", lw=1.5, label=label)
     limits = sorted({s.deputy.attitude_limit for s in canvas.series})
     for limit in limits:
         label = "attitude limit" if len(limits) == 1 else f"attitude limit {limit:g}"

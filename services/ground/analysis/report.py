@@ -47,6 +47,7 @@ from services.ground.analysis.rundata import (
 from services.ground.analysis.scoring import (
     DeputyOutcome,
     deputy_metrics,
+    fallback_switches,
     holding_notes,
     learned_switches,
     reference_gains,
@@ -103,9 +104,7 @@ def _deputy_summary(
         log=[text] if (text := data.last_log.get(log_topic(f"ctrl-{d.name}"))) else [],
         completed=completed,
         # a learner's switches to the LQR's gains: its fallback (services.flight.phases)
-        fallback_at=[t * data.period for t in _switches(craft.gains, "lqr", data.period)]
-        if d.controller == "ddvi"
-        else [],
+        fallback_at=fallback_switches(craft.gains) if d.controller == "ddvi" else [],
     )
     m = deputy_metrics(
         data.dep, d, outcome, K_true=s.K_true, K_lqr=s.K_lqr, cannot_hold=cannot_hold

@@ -51,6 +51,16 @@ def learned_switches(gains: Sequence[GainRecord]) -> list[float]:
     ]
 
 
+def fallback_switches(gains: Sequence[GainRecord]) -> list[float]:
+    """When (s) a learner's gains switched to its fallback, the nominal model's LQR gains
+    (source "lqr", ``services.flight.phases``), from others, in order."""
+    return [
+        r.t
+        for k, r in enumerate(gains)
+        if r.source == "lqr" and k > 0 and gains[k - 1].source != "lqr"
+    ]
+
+
 NOT_LEARNED_TEXT = "not learned"
 """What a table prints for the gain error of a learner that flies no learned gain."""
 
