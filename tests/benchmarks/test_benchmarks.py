@@ -179,3 +179,13 @@ def test_swarm_rows_compare_a_deputy_orbit_with_the_four_deputy_swarm() -> None:
     assert rows["32 lqr deputies: loop per orbit, against one process"]["cost_ratio"] == 2.0
     assert rows["32 lqr deputies: peak memory (PSS) per deputy"]["project"] == 100.0
     assert rows["32 lqr deputies: messages recorded a second"]["project"] == 2000.0
+
+
+@pytest.mark.integration  # one 40-orbit mission of one deputy, a few seconds
+def test_the_velocity_noise_table_flies_the_paper_learner_alone_at_the_noise_asked() -> None:
+    from benchmarks.velocity_noise import LEARNER, draw
+
+    row = draw(0.0, 1)  # exact velocity, 1 m of position noise through the filter
+    assert row["deputy"] == LEARNER and row["completed"]
+    assert row["learned"] is True and row["learned_at_orbits"] == pytest.approx(15.0, abs=0.01)
+    assert 0.05 < row["gain_error"] < 0.3  # learned, but not to K*: the position noise
