@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from ddvi_core.lqr import relative_gain_error
 from ddvi_core.navfilter import RelativeNavFilter, process_noise, transition
 from services.config import deployment_from_table, read_table
 from services.flight import learners as learners_mod
@@ -43,6 +44,18 @@ def _model(f: RelativeNavFilter, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The filter's transition and discrete process noise over dt, as its update takes them."""
     dt = round(dt, 6)
     return transition(f.n, dt), process_noise(f.n, dt, f.q)
+
+
+def _recorded_update(update, f: RelativeNavFilter, t: float, z: np.ndarray) -> tuple:
+    """``update(f, t, z)`` and what the RTS pass needs of it: ((x, P) as update returns
+    them, (t, Phi (None first), x_pred, P_pred, x_f, P_f))."""
+    if f.t is None:
+        Phi = xp = Pp = None
+    else:
+        Phi, Qd = _model(f, t - f.t)
+        xp, Pp = Phi @ f.x, Phi @ f.P @ Phi.T + Qd
+    x, P = update(f, t, z)
+    return (x, P), (t, Phi, xp, Pp, x.copy(), P.copy())
 
 
 class Recorder:
@@ -63,14 +76,9 @@ class Recorder:
         rec = self
 
         def update_w(f, t, z):
-            if f.t is None:
-                Phi = xp = Pp = None
-            else:
-                Phi, Qd = _model(f, t - f.t)
-                xp, Pp = Phi @ f.x, Phi @ f.P @ Phi.T + Qd
-            x, P = update(f, t, z)
-            rec.nav.append((t, Phi, xp, Pp, x.copy(), P.copy()))
-            return x, P
+            estimate, record = _recorded_update(update, f, t, z)
+            rec.nav.append(record)
+            return estimate
 
         def collect_w(lr, t, x, u, v):
             rec.samples.append((t, np.array(x, float), float(u), np.array(v, float)))
@@ -120,16 +128,8 @@ def forward(
     """The navigation filter's forward pass over measurements z (K, 6) at t (K,), with
     acceleration noise ``accel`` (what the flight filter does, retuned): arrays as rts_gains."""
     f = RelativeNavFilter(n, sigma, accel, period)
-    nav = []
-    for tk, zk in zip(t, z, strict=True):
-        if f.t is None:
-            Phi = xp = Pp = None
-        else:
-            Phi, Qd = _model(f, tk - f.t)
-            xp, Pp = Phi @ f.x, Phi @ f.P @ Phi.T + Qd
-        x, P = f.update(tk, zk)
-        nav.append((tk, Phi, xp, Pp, x.copy(), P.copy()))
-    return rts_gains(nav)
+    update = RelativeNavFilter.update
+    return rts_gains([_recorded_update(update, f, tk, zk)[1] for tk, zk in zip(t, z, strict=True)])
 
 
 def rts_full(
@@ -175,9 +175,10 @@ def relearn(
         learner.store = saved
 
 
-def draw(
-    noise: float, seed: int, lags: list[int], accels: list[float], keep: dict | None = None
-) -> dict:
+def draw(noise: float, seed: int, lags: list[int], accels: list[float]) -> dict:
+    """Draw ``seed`` at ``noise`` m: the flight attempt's outcome and, per source of the state
+    (see the module), (learned, gain error or None, why refused, the RMS error (4,) of the
+    learning window's states against the truth)."""
     table = read_table(DEPLOYMENT)
     table["deputy"] = [d for d in table["deputy"] if d["name"] == LEARNER]
     (deputy,) = table["deputy"]
@@ -205,7 +206,6 @@ def draw(
         "filtered": np.array([s[1] for s in rec.samples]),
         "smoothed": xs[idx][:, PLANE],
         **{f"lag {L}": rts_lag(xf, xp, C, L, end)[idx][:, PLANE] for L in lags},
-        "truth": truth,
     }
     # navigation retuned: the same measurements through a filter with less process noise
     nav_cfg = dep.deputy_named(LEARNER).navigation
@@ -221,34 +221,15 @@ def draw(
         variants[f"smoothed q={q:g}"] = xs2[idx][:, PLANE]
         for L in lags:
             variants[f"lag {L} q={q:g}"] = rts_lag(xf2, xp2, C2, L, end)[idx][:, PLANE]
-    variants["truth"] = variants.pop("truth")
-    if keep is not None:  # for further experiments on the same draw
-        keep.update(
-            variants=variants,
-            samples=rec.samples,
-            learner=learner,
-            since=since,
-            exosystem=exosystem,
-            K_star=K_star,
-            t_nav=t_nav,
-            end=end,
-            idx=idx,
-            out=out,
-            forward=(xf, Pf, xp, Pp, C),
-        )
+    variants["truth"] = truth
     res = {"noise": noise, "seed": seed, "flight": flight.refused or "learned"}
     win = ts >= since - 1e-6
     for name, x in variants.items():
         a = relearn(learner, rec.samples, x, since, exosystem)
         err = x[win] - truth[win]
         rms = np.sqrt((err**2).mean(axis=0))
-        if a.result is not None:
-            K = np.asarray(a.result.K)
-            gerr = float(np.linalg.norm(K - K_star) / np.linalg.norm(K_star))
-            if a.refused is not None:
-                gerr = None
-        else:
-            gerr = None
+        learned = a.refused is None and a.result is not None
+        gerr = relative_gain_error(np.asarray(a.result.K), K_star) if learned else None
         res[name] = (a.refused is None, gerr, a.refused, rms)
     return res
 

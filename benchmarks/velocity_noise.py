@@ -46,10 +46,6 @@ def draw(velocity_noise: float, seed: int) -> dict:
     return row
 
 
-def _run(args: tuple[float, int]) -> dict:
-    return draw(*args)
-
-
 def _median_max(values: list[float]) -> str:
     return f"{np.median(values):.3g} / {max(values):.3g}" if values else "-"
 
@@ -64,7 +60,7 @@ def main() -> None:
         parser.error("--draws must be at least 1 and every --values at least 0")
     tasks = [(v, seed) for v in args.values for seed in range(1, args.draws + 1)]
     with ProcessPoolExecutor(args.workers) as pool:
-        rows = list(pool.map(_run, tasks))
+        rows = list(pool.map(draw, *zip(*tasks, strict=True)))
     print(
         "| velocity noise (m/s) | learned | learned at orbit (p50) | gain error p50 / max "
         "| final p50 / max (m) | fell back |"

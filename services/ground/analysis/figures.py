@@ -35,7 +35,7 @@ from services.ground.analysis.rundata import (
     GainRecord,
     RunData,
 )
-from services.ground.analysis.scoring import fallback_switches, learned_switches
+from services.ground.analysis.scoring import learned_switches, switches_to
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -247,7 +247,7 @@ def sigma3_figure(canvas: Canvas) -> Figure:
             label = f"{name} learned" if k == 0 else None
             ax.axvline(t / P, color=color, ls="--", lw=1.2, label=label)
         if s.deputy.controller == "ddvi":
-            for k, t in enumerate(fallback_switches(craft.gains)):
+            for k, t in enumerate(switches_to(craft.gains, "lqr")):
                 label = f"{name} fallback (LQR)" if k == 0 else None
                 ax.axvline(t / P, color=color, ls=":", lw=1.5, label=label)
     limits = sorted({s.deputy.attitude_limit for s in canvas.series})

@@ -41,16 +41,15 @@ from services.ground.analysis.rundata import (
     CraftData,
     DeputySeries,
     FloatArray,
-    GainRecord,
     RunData,
 )
 from services.ground.analysis.scoring import (
     DeputyOutcome,
     deputy_metrics,
-    fallback_switches,
     holding_notes,
     learned_switches,
     reference_gains,
+    switches_to,
     table_cell,
 )
 from services.ground.storage.disk import REPORT_ROOM, failure, size_text, space_left, write_whole
@@ -75,15 +74,6 @@ def _last_orbit(t: FloatArray, period: float) -> NDArray[np.bool_]:
     return t >= t[-1] - period
 
 
-def _switches(gains: list[GainRecord], source: str, period: float) -> list[float]:
-    """When (orbits) the gains switched to ``source`` from another, in order."""
-    return [
-        r.t / period
-        for k, r in enumerate(gains)
-        if r.source == source and (k == 0 or gains[k - 1].source != source)
-    ]
-
-
 REFERENCE = "the optimal gain K* of the truth's linear model (its density, facet area and factors)"
 
 
@@ -104,7 +94,7 @@ def _deputy_summary(
         log=[text] if (text := data.last_log.get(log_topic(f"ctrl-{d.name}"))) else [],
         completed=completed,
         # a learner's switches to the LQR's gains: its fallback (services.flight.phases)
-        fallback_at=fallback_switches(craft.gains) if d.controller == "ddvi" else [],
+        fallback_at=switches_to(craft.gains, "lqr") if d.controller == "ddvi" else [],
     )
     m = deputy_metrics(
         data.dep, d, outcome, K_true=s.K_true, K_lqr=s.K_lqr, cannot_hold=cannot_hold
@@ -147,7 +137,8 @@ def _deputy_summary(
             switches = learned_switches(craft.gains)[1:]
             out["relearned_at_orbits"] = [t / data.period for t in switches]
             # every return to the old gains after re-learning failed (LearningCycle.learning_failed)
-            out["relearning_abandoned_at_orbits"] = _switches(craft.gains, "fallback", data.period)
+            abandoned = switches_to(craft.gains, "fallback")
+            out["relearning_abandoned_at_orbits"] = [t / data.period for t in abandoned]
     return out
 
 

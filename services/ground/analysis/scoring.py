@@ -51,13 +51,14 @@ def learned_switches(gains: Sequence[GainRecord]) -> list[float]:
     ]
 
 
-def fallback_switches(gains: Sequence[GainRecord]) -> list[float]:
-    """When (s) a learner's gains switched to its fallback, the nominal model's LQR gains
-    (source "lqr", ``services.flight.phases``), from others, in order."""
+def switches_to(gains: Sequence[GainRecord], source: str) -> list[float]:
+    """When (s) a controller's gains switched to ``source`` from others, in order: a learner's
+    to "lqr" are its fallback, the nominal model's LQR gains (``services.flight.phases``);
+    to "fallback", a failed re-learning's return to the old gains."""
     return [
         r.t
         for k, r in enumerate(gains)
-        if r.source == "lqr" and k > 0 and gains[k - 1].source != "lqr"
+        if r.source == source and k > 0 and gains[k - 1].source != source
     ]
 
 
