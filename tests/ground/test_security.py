@@ -294,6 +294,9 @@ def test_the_operator_and_the_observer_find_a_secure_run_by_its_folder(tmp_path:
     proc = subprocess.Popen([*cmd, "--quiet"], stdout=log, stderr=log)
     try:
         out, info = _wait_for_run(root)
+        # the router opens just after the run folder is written: a tool started at once may
+        # find no one listening yet ("cannot connect"), so wait until it takes the observer
+        _open(info["hub"], load_credentials(credentials_path(out, OBSERVER))).close()
         seen = _ddvi("monitor", "--run", str(out), "--count", "3", "--seconds", "30")
         assert seen.returncode == 0 and len(seen.stdout.splitlines()) == 3, seen.stderr
         assert all(f"ddvi/{info['run']}/" in line for line in seen.stdout.splitlines())
