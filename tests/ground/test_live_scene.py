@@ -250,7 +250,7 @@ def test_a_client_that_subscribes_late_is_sent_the_last_state_at_once() -> None:
         try:
             assert wait_until(lambda: "alive/nav-lqr" in client.counts, timeout=3)
             assert wait_until(lambda: "ctrl/ddvi/status" in client.counts, timeout=3)
-            assert live.watched.is_set()
+            assert wait_until(live.watched.is_set, timeout=3)
             got = next(m for m in client.messages if m.topic == "ctrl/ddvi/status")
             assert got.json()["body"]["phase"] == "exploring" and got.timestamp == ns(20.0)
             assert got.at - client.subscribed["ctrl/ddvi/status"] < 3.0

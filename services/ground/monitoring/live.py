@@ -40,7 +40,7 @@ import orjson
 from services.bus import worth_saying
 from services.config import Deployment
 from services.ground.monitoring.live_address import LiveAddress
-from services.ground.monitoring.live_latch import LATCHED, Latch, Payload, schema_kind
+from services.ground.monitoring.live_latch import LATCH_DELAY, LATCHED, Latch, Payload, schema_kind
 from services.ground.monitoring.scene import SceneMessage
 from services.ground.storage.recording import (
     ALIVE_SCHEMA,
@@ -117,14 +117,23 @@ def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]
 def _subscriptions(latch: Latch, watched: threading.Event) -> Any:
     """The server's listener (a ``foxglove.websocket.ServerListener``, whose other callbacks
     do nothing): each subscription is owed its channel's last message (``Latch``); the first
-    sets ``watched``."""
+    sets ``watched`` ``LATCH_DELAY`` s later, once the server routes to the client what it
+    asked for in the same request (a message said because it came, such as the monitor's
+    "a client subscribed", would otherwise race its own channel's subscription)."""
     from foxglove.websocket import ServerListener
 
     class Subscriptions(ServerListener):
+        def __init__(self) -> None:
+            self.first = threading.Timer(LATCH_DELAY, watched.set)
+            self.first.daemon = True
+            self.lock = threading.Lock()
+
         def on_subscribe(self, client: Any, channel: Any) -> None:
             try:
                 latch.subscribed(channel.topic)
-                watched.set()
+                with self.lock:
+                    if self.first.ident is None:  # not started yet
+                        self.first.start()
             except Exception:  # a callback of the server's must never raise
                 log.exception("live view: a subscription to %s not taken", channel.topic)
 
@@ -157,7 +166,7 @@ class LiveServer:
         for topic, (schema_name, schema) in advertise.items():
             self._channel(topic, schema_name, schema)
         self.latch = Latch(self._resend)
-        self.watched = threading.Event()  # set once a client has subscribed to a channel
+        self.watched = threading.Event()  # set once a client has subscribed (LATCH_DELAY after)
         self._server = foxglove.start_server(
             name=name,
             host=address.host,
