@@ -19,7 +19,7 @@ import zenoh
 
 from services.bus import BusSettings, open_session
 from services.config import deployment_from_table
-from services.ground.launch.credentials import hub_settings
+from services.ground.launch.credentials import hub_settings, write_bus_file
 from services.ground.launch.launcher import free_port as find_free_port
 from services.interface import encode
 
@@ -67,7 +67,9 @@ def _tampered(tmp_path: Path, hub: str) -> Path:
     folder = tmp_path / RUN
     folder.mkdir(mode=0o700)
     dep = deployment_from_table({"deputy": [{"name": "lqr"}]})
-    hub_settings(dep, RUN, folder, ["tcp/127.0.0.1:1"], dep.services)
+    write_bus_file(
+        folder, RUN, hub_settings(dep, RUN, folder, ["tcp/127.0.0.1:1"], dep.services), True
+    )
     info = json.loads((folder / "bus.json").read_text())
     assert info["security"] is True and (folder / "security" / "observer.json").is_file()
     (folder / "bus.json").unlink()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -91,8 +92,7 @@ def _client(hub: str, cred: Credentials | None) -> BusSettings:
 
 
 def _open(hub: str, cred: Credentials, timeout: float = 60.0) -> zenoh.Session:
-    """A session of ``cred``'s user on ``hub``, once its router takes it (the router opens
-    just after the run folder is written)."""
+    """A session of ``cred``'s user on ``hub``, once its router takes it."""
     opened: list[zenoh.Session] = []
 
     def connected() -> bool:
@@ -294,9 +294,9 @@ def test_the_operator_and_the_observer_find_a_secure_run_by_its_folder(tmp_path:
     proc = subprocess.Popen([*cmd, "--quiet"], stdout=log, stderr=log)
     try:
         out, info = _wait_for_run(root)
-        # the router opens just after the run folder is written: a tool started at once may
-        # find no one listening yet ("cannot connect"), so wait until it takes the observer
-        _open(info["hub"], load_credentials(credentials_path(out, OBSERVER))).close()
+        # bus.json is written once the hub listens: a tool started at once connects
+        host, port = info["hub"].split("/", 1)[1].rsplit(":", 1)
+        socket.create_connection((host, int(port)), timeout=5).close()
         seen = _ddvi("monitor", "--run", str(out), "--count", "3", "--seconds", "30")
         assert seen.returncode == 0 and len(seen.stdout.splitlines()) == 3, seen.stderr
         assert all(f"ddvi/{info['run']}/" in line for line in seen.stdout.splitlines())

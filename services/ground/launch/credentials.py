@@ -1,8 +1,9 @@
 """A run's bus, as the launcher sets it up and the ground's commands find it.
 
-The launcher writes ``<run folder>/bus.json`` (the run's name, its hub endpoint, whether the bus
-is secure: no secrets) and, on a secure bus (``bus.security``, the default), every participant's
-credentials in ``<run folder>/security/`` (``services.bus.security``).  ``ddvi fault`` and
+The launcher writes, on a secure bus (``bus.security``, the default), every participant's
+credentials in ``<run folder>/security/`` (``services.bus.security``), opens the hub with them,
+and then writes ``<run folder>/bus.json`` (the run's name, its hub endpoint, whether the bus is
+secure: no secrets): a run whose bus.json is there has a hub that listens.  ``ddvi fault`` and
 ``ddvi monitor`` find a run by its name or its folder (``find_run``) and connect with the
 operator's or the observer's credentials from there.
 """
@@ -35,11 +36,12 @@ from services.config import Deployment
 def hub_settings(
     dep: Deployment, run: str, out: Path, listen: list[str], services: list[str]
 ) -> BusSettings:
-    """Write the run folder's ``bus.json`` and, on a secure bus, the credentials of every
-    service, the operator and the observer; return the hub's settings (a router with the
+    """Write, on a secure bus, the credentials of every service, the operator and the
+    observer in the run folder ``out``; return the hub's settings (a router with the
     dictionary and the access control on a secure bus, else what ``bus.mode`` says).
     ``listen``: the loopback endpoint, then one on each other host's link (made TLS on a
-    secure bus, with the run's certificates)."""
+    secure bus, with the run's certificates).  ``write_bus_file`` says where the hub is,
+    once it listens."""
     secure = dep.bus.security
     hosts = [e.split("/", 1)[1].rsplit(":", 1)[0] for e in listen[1:]]
     if secure and hosts:
@@ -50,9 +52,6 @@ def hub_settings(
                 for a, e in zip(hosts, listen[1:], strict=True)
             ),
         ]
-    info = {"run": run, "hub": listen[0], "listen": listen, "security": secure}
-    # new, never through a link: a bus.json another user planted is refused, not followed
-    write_private(out / BUS_FILE, json.dumps(info, indent=1) + "\n", mode=0o644)
     connect = list(dep.bus.connect)
     if not secure:
         return BusSettings(
@@ -73,6 +72,16 @@ def hub_settings(
         ),
         tls=router_tls,
     )
+
+
+def write_bus_file(out: Path, run: str, hub: BusSettings, secure: bool) -> None:
+    """Write the run folder's ``bus.json``: the run's name, the endpoints the hub (``hub``,
+    from ``hub_settings``) listens on, the first its loopback one, and whether the bus is
+    secure.  Written once the hub's session is open, so that a command which finds the run
+    finds a hub to connect to."""
+    info = {"run": run, "hub": hub.listen[0], "listen": list(hub.listen), "security": secure}
+    # new, never through a link: a bus.json another user planted is refused, not followed
+    write_private(out / BUS_FILE, json.dumps(info, indent=1) + "\n", mode=0o644)
 
 
 def host_endpoint(dep: Deployment, address: str, port: int | str) -> str:

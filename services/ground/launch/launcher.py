@@ -161,7 +161,7 @@ class Launcher:
 
     def _make_folder(self) -> int | None:
         """Make the run folder exclusively (``runfolder.make_run_folder``: a name that exists
-        is never reused) with its bus.json, credentials and a copy of the deployment; None, or
+        is never reused) with its credentials and a copy of the deployment; None, or
         (one line said, no run folder left) status 2."""
         made = False
         try:
@@ -169,7 +169,7 @@ class Launcher:
             self.services.run, self.services.out = self.run, self.out  # a new name if taken
             made = True
             (self.out / "logs").mkdir()
-            self._hub_settings()  # bus.json and the credentials, each a new file
+            self._hub_settings()  # the credentials, each a new file
             if self.table is not None:
                 text = tomli_w.dumps(self.table)
                 write_private(self.out / DEPLOYMENT_FILE, text, mode=0o644)
@@ -209,6 +209,8 @@ class Launcher:
                     error=True,
                 )
                 return lifecycle.EXIT_USAGE
+            if (status := self._write_bus_file()) is not None:
+                return status
             return self._fly(session, started)
         return lifecycle.EXIT_FAILED  # not reached (mypy: ExitStack may swallow)
 
@@ -247,6 +249,17 @@ class Launcher:
             error=True,
         )
         return lifecycle.EXIT_FAILED
+
+    def _write_bus_file(self) -> int | None:
+        """Say where the run's hub listens (``bus.json``), now that it does; None, or (one
+        line said, no run folder left) status 2."""
+        try:
+            credentials.write_bus_file(self.out, self.run, self._hub, self.dep.bus.security)
+        except OSError as exc:
+            shutil.rmtree(self.out, ignore_errors=True)
+            self.say(f"cannot write the run's bus.json in {self.out} ({exc})", error=True)
+            return lifecycle.EXIT_USAGE
+        return None
 
     def _fly(self, session: Any, started: float) -> int:
         """Start every service at once, the environment included, and supervise."""
@@ -308,7 +321,7 @@ class Launcher:
             return made
         hosts = range(len(self.dep.host))
         listen = [self.hub] + [f"tcp/{hub_address(k)}:{self.port}" for k in hosts]
-        # bus.json and, on a secure bus, every participant's credentials in the run folder
+        # on a secure bus, every participant's credentials in the run folder
         self._hub: BusSettings = dataclasses.replace(
             credentials.hub_settings(self.dep, self.run, self.out, listen, self.dep.services),
             lease_ms=self.dep.session_lease_ms(),  # a frozen client keeps its hub (docs/health.md)
