@@ -17,13 +17,11 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
-import json
 import os
 import queue
 import shutil
 import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
@@ -41,14 +39,12 @@ from services.ground.launch import credentials, lifecycle
 from services.ground.launch.netns import exists as netns_exists
 from services.ground.launch.netns import hub_address
 from services.ground.launch.processes import ServiceProcesses
+from services.ground.launch.report import await_report, recover_report, report_wait
 from services.ground.launch.runfolder import DEPLOYMENT_FILE, FOLDER_MODE, make_run_folder
 from services.ground.launch.supervisor import Supervisor
 from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
 from services.interface.topics import ROS2_GATEWAY, fault_topic, log_topic
 from services.model import holding_warnings, reentry_warnings
-
-REPORT_WAIT = 60.0  # s the monitor has for its report once the mission is over...
-REPORT_WAIT_PER_DEPUTY = 5.0  # ...and this much more a deputy
 
 
 def _live_view(
@@ -152,11 +148,11 @@ class Launcher:
             status = self._open_and_fly()
         finally:
             try:
-                self.services.stop_all(report_grace=self.report_wait())
+                self.services.stop_all(report_grace=report_wait(self.dep))
             finally:
                 self.signals.restore()
         if self.supervisor.monitor_died:
-            self._recover()
+            recover_report(self.out, self.say)
         return self._after_stop(status)
 
     def _make_folder(self) -> int | None:
@@ -293,7 +289,8 @@ class Launcher:
             status = self.supervisor.watch(bus, faults)
             if status is not None:
                 return status
-            return self._await_report(self.services["monitor"].popen, started)
+            monitor = self.services["monitor"].popen
+            return await_report(monitor, self.out, report_wait(self.dep), started, self.say)
 
     def _after_stop(self, status: int) -> int:
         """Once every service is stopped: a stop signal's status (and whether the partial
@@ -333,44 +330,3 @@ class Launcher:
                 error=True,
             )
         return self._hub
-
-    def report_wait(self) -> float:
-        """Wall seconds the monitor has for its report once the mission is over: its series,
-        figures and table grow with the deputies (32 take about a minute on a loaded 2-core
-        machine)."""
-        return REPORT_WAIT + REPORT_WAIT_PER_DEPUTY * len(self.dep.deputy)
-
-    def _await_report(self, monitor: subprocess.Popen, started: float) -> int:
-        """Wait for the monitor's report (``report_wait`` s at most); the run's verdict from
-        it."""
-        wait = self.report_wait()
-        deadline = time.monotonic() + wait
-        while monitor.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.1)  # a stop signal now changes nothing: the report is being written
-        if monitor.poll() is None:
-            self.say(f"monitor did not finish its report within {wait:g} s", error=True)
-            return 1
-        summary = self.out / "summary.json"
-        if monitor.returncode != 0 or not summary.is_file():
-            self.say(lifecycle.no_report(self.out, monitor.returncode), error=True)
-            return 1
-        took = time.monotonic() - started
-        status, text = lifecycle.final_line(json.loads(summary.read_text()), self.out, took)
-        self.say(text, error=status != 0)
-        print(self.out)
-        return status
-
-    def _recover(self) -> None:
-        """The monitor died: write the report from its recording, up to the last complete
-        chunk (``ddvi report``), so that a run never ends without one."""
-        try:
-            from services.ground.analysis.recover import recover
-
-            n = recover(self.out).messages
-            self.say(
-                f"report recovered from the recording ({n} messages); see {self.out}", error=True
-            )
-        except Exception as exc:  # a recovery that fails is said; the run has failed anyway
-            self.say(
-                f"could not recover the report ({exc}); try `ddvi report {self.out}`", error=True
-            )
