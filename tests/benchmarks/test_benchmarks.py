@@ -1,7 +1,8 @@
 """The benchmarks' own measuring tools: the learning benchmark's search for the fewest
 iterations to a gain tolerance, the mission benchmark's memory of a process tree, the
-one-process run's split of its work among the services, the lock-step floor, and what
-``ddvi bench`` says when the benchmarks cannot be imported."""
+one-process run's split of its work among the services, the lock-step floor, what
+``ddvi bench`` says when the benchmarks cannot be imported, and the twin benchmark's perfect
+learner on the truth's gains."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import subprocess
 import sys
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from benchmarks.floor import run_floor
@@ -189,3 +191,44 @@ def test_the_velocity_noise_table_flies_the_paper_learner_alone_at_the_noise_ask
     assert row["deputy"] == LEARNER and row["completed"]
     assert row["learned"] is True and row["learned_at_orbits"] == pytest.approx(15.0, abs=0.01)
     assert 0.05 < row["gain_error"] < 0.3  # learned, but not to K*: the position noise
+
+
+def test_the_perfect_learner_on_the_truth_gains_flies_k_star_and_l_star_padded(
+    monkeypatch,
+) -> None:
+    from benchmarks import twin_lqr
+    from services.flight import learners
+    from services.model import lqr_gains
+
+    @dataclasses.dataclass
+    class Fitted:
+        K: np.ndarray
+        L: np.ndarray
+
+    fitted = Fitted(K=np.ones((1, 4)), L=np.ones((1, 6)))  # the exostate and its density ratio
+    monkeypatch.setattr(learners, "fit_attempt", lambda *a, **k: (fitted, {"rank": 4}, "why"))
+    dep = deployment_from_table(read_table("storm"))
+    K, L = twin_lqr.GAINS["truth"](dep, dep.deputy[2])
+    K_lqr, L_lqr = lqr_gains(dep, dep.deputy[0])
+    # the truth's density and scale height: the LQR's gain error of docs/atmosphere.md
+    assert np.linalg.norm(K - K_lqr) / np.linalg.norm(K) == pytest.approx(0.023, abs=0.002)
+    assert not L_lqr.any() and L[0, 0] > 0.01  # the chief's extra drag, L* alone cancels it
+    r, info, why = twin_lqr._perfect_fit((K, L))()
+    assert why is None and info == {"rank": 4}  # every attempt accepted
+    np.testing.assert_array_equal(r.K, K)
+    np.testing.assert_array_equal(r.L, np.hstack([L, [[0.0]]]))
+
+
+@pytest.mark.integration  # a 6.5-orbit mission of three deputies in NRLMSIS, a few seconds
+def test_the_twin_benchmark_flies_another_deployment_with_the_perfect_learner_at_orbit_6(
+    tmp_path,
+) -> None:
+    from benchmarks import twin_lqr
+    from services.config import write_deployment
+
+    table = read_table("storm")
+    table["run"]["orbits"] = 6.5
+    path = write_deployment(table, tmp_path, "storm-short")
+    lqr, twin, learner, learned_at = twin_lqr._draw(twin_lqr.Draw(path, 1.0, 1, gains="truth"))
+    assert learned_at == pytest.approx(twin_lqr.BY_ORBIT, abs=0.05)
+    assert all(np.isfinite([lqr, twin, learner]))
