@@ -131,7 +131,6 @@ class Launcher:
             return lifecycle.EXIT_USAGE
         if (status := self._make_folder()) is not None:
             return status
-        self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
         for warning in warnings:
             self.say(f"warning: {warning}")
         for warning in holding_warnings(self.dep) + reentry_warnings(self.dep):
@@ -207,6 +206,8 @@ class Launcher:
                 return lifecycle.EXIT_USAGE
             if (status := self._write_bus_file()) is not None:
                 return status
+            # said once the run can be found: a command started on this line connects
+            self.say(f"run {self.run}, output {self.out}, hub {self.hub}")
             return self._fly(session, started)
         return lifecycle.EXIT_FAILED  # not reached (mypy: ExitStack may swallow)
 
