@@ -42,7 +42,7 @@ from ddvi_core.learning_config import (
 )
 from ddvi_core.lqr import NotStabilisingError, solve_lqr
 from ddvi_core.problem import RegulationProblem
-from ddvi_core.value_iteration import balanced_scaling
+from ddvi_core.scaling import balanced_scaling
 from ddvi_core.vec import triangle_size
 
 __all__ = ["DERIVED_KEYS", "SAMPLES_PER_INTERVAL", "derive_learning", "system_rates"]

@@ -42,9 +42,7 @@ from ddvi_core.regression import (
     scale_intervals,
     solve_output_regulation,
 )
-from ddvi_core.value_iteration import (
-    Scaling,
-)
+from ddvi_core.scaling import Scaling
 from ddvi_core.vec import triangle_size
 
 RANK_RTOL = 1e-10

@@ -21,9 +21,10 @@ from ddvi_core.exploration import InterleavedExploration, periodic_start
 from ddvi_core.learning import IntervalCollector, LearningError, learn_from_data
 from ddvi_core.lqr import NotStabilisingError, policy_iteration, relative_gain_error, solve_lqr
 from ddvi_core.regulator import feedforward_gain, solve_regulator_equations
+from ddvi_core.scaling import Scaling, balanced_scaling
 from ddvi_core.simulate import Exploration, simulate_zoh
 from ddvi_core.systems import System
-from ddvi_core.value_iteration import Scaling, balanced_scaling, value_iteration
+from ddvi_core.value_iteration import value_iteration
 
 __all__ = ["DATA_METHODS", "METHODS", "Solution", "collect", "reference_errors", "solve"]
 

@@ -113,7 +113,7 @@ def orbit_mean_density(dep: Deployment, dh: float = 1e3) -> tuple[float, float]:
     """The truth's density averaged around the chief's orbit plane at its initial semi-major
     axis at time 0, kg/m^3, and its local scale height there, m (from the averages ``dh`` m
     below and above): the exponential profile times environment.density_factor, or NRLMSIS's
-    at the epoch.  What the truth's linear model (``services.model.mission.true_problem``)
+    at the epoch.  What the truth's linear model (``services.model.reference.true_problem``)
     takes for its density."""
     rho_bar = _density(dep, _circle(dep))
     a = dep.chief.a

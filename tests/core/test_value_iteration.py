@@ -8,12 +8,11 @@ import scipy.linalg
 
 from ddvi_core import models
 from ddvi_core.lqr import solve_lqr
+from ddvi_core.scaling import Scaling, balanced_scaling
 from ddvi_core.value_iteration import (
     BoundSchedule,
     IterationSettings,
-    Scaling,
     StepSequence,
-    balanced_scaling,
     value_iteration,
     value_iteration_loop,
 )

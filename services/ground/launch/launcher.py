@@ -251,7 +251,8 @@ class Launcher:
         """Say where the run's hub listens (``bus.json``), now that it does; None, or (one
         line said, no run folder left) status 2."""
         try:
-            credentials.write_bus_file(self.out, self.run, self._hub, self.dep.bus.security)
+            hub = self._hub_settings()  # made with the folder
+            credentials.write_bus_file(self.out, self.run, hub, self.dep.bus.security)
         except OSError as exc:
             shutil.rmtree(self.out, ignore_errors=True)
             self.say(f"cannot write the run's bus.json in {self.out} ({exc})", error=True)

@@ -39,6 +39,7 @@ import orjson
 
 from services.bus import worth_saying
 from services.config import Deployment
+from services.ground.analysis.outcome import TIME_MASTER
 from services.ground.monitoring.live_address import LiveAddress
 from services.ground.monitoring.live_latch import LATCH_DELAY, LATCHED, Latch, Payload, schema_kind
 from services.ground.monitoring.scene import SceneMessage
@@ -55,7 +56,6 @@ from services.interface import SCHEMAS, Message, MessageError, topics
 log = logging.getLogger("ddvi.live")
 
 BACKLOG = 8192  # messages queued per client before its oldest are dropped (a few MB at most)
-TIME_MASTER = "environment"  # the one service whose clock moves the live view's time
 _ROW = {"type": "array", "items": {"type": "number"}}
 LIVE_GAINS_SCHEMA: dict[str, Any] = {
     "title": "ddvi.live_gains",

@@ -8,8 +8,9 @@ It subscribes to ``ddvi/<run>/**`` with a raw zenoh subscriber (not ``Bus.subscr
 undecodable payloads are recorded too) and to the run's liveliness tokens, and writes
 ``DIR/recording.mcap`` (``services.ground.storage.recording``; a batch,
 ``services.interface.unpack_batch``, message by message).  A sample past its key's rate budget
-(``services.bus.budget``) is dropped in the subscriber's callback, unread and unqueued, and
-counted (``flooded``, ``flood.<publisher>``): a flood never puts the monitor behind.
+(``services.bus.budget``) is dropped in the subscriber's callback
+(``services.ground.monitoring.intake``), unread and unqueued, and counted (``flooded``,
+``flood.<publisher>``): a flood never puts the monitor behind.
 
 A message whose (publisher, topic, seq) was seen already, or is older than the receiver's
 sequence window (``services.bus.SequenceGuard``), is recorded but kept out of the report and
@@ -60,14 +61,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
-from services.bus import SEQUENCE_REASONS, RateBudget, SequenceGuards, worth_saying
+from services.bus import SEQUENCE_REASONS, SequenceGuards, worth_saying
 from services.flight.health import RECORDER_ACK_STEPS
 from services.flight.runtime import ServiceContext, run_service
+from services.ground.analysis.outcome import TIME_MASTER
 from services.ground.analysis.report import ReportNotWrittenError, write_report
 from services.ground.analysis.rundata import RunData
 from services.ground.monitoring.ending import Ending
+from services.ground.monitoring.intake import ALIVE, DATA, Inbox, Item, subscribe
 from services.ground.monitoring.live import LiveServer, live_server
 from services.ground.monitoring.live_address import CLIENT_JOINED, parse_address
 from services.ground.monitoring.scene import Scene, open_scene
@@ -103,12 +104,6 @@ NICENESS = 10
 POLL = 0.05  # s the main loop waits for a sample before it looks at the clocks again
 BATCH_PERIOD = 0.005  # s the main loop lets samples gather once one has come
 BATCH_MAX = 512  # samples a batch at most: flushing, the status and a stop are looked at between
-
-TIME_MASTER = "environment"  # the one service whose clock messages the monitor obeys
-_DATA, _ALIVE = 0, 1
-Item = tuple[int, str, Any, int]
-"""A queued sample: (_DATA or _ALIVE, key, payload bytes or alive flag, receive time ns)."""
-Inbox = queue.SimpleQueue[Item]
 
 
 class Monitor:
@@ -163,7 +158,7 @@ class Monitor:
         kind, key, value, recv_ns = item
         rec = self.recorder
         assert rec is not None
-        if kind == _ALIVE:
+        if kind == ALIVE:
             name = key[len(self.alive_prefix) :]
             if value:
                 self.alive.add(name)
@@ -302,52 +297,6 @@ class Monitor:
         return [s for s in self.others if not self.done(s)]
 
 
-def _advance(budget: RateBudget, payload: bytes) -> None:
-    """The budget's simulated time from a clock payload (the time master's only)."""
-    try:
-        for part in unpack_batch(payload) or (payload,):
-            msg = decode(part, "clock")
-            if msg.src == TIME_MASTER:
-                budget.advance(msg.t)
-    except MessageError:
-        pass  # recorded and refused by the main loop
-
-
-def _subscribe(
-    session: zenoh.Session, run: str, inbox: Inbox, budget: RateBudget | None = None
-) -> tuple[Any, Any]:
-    """The raw data subscriber and the liveliness subscriber, feeding ``inbox``; with a
-    ``budget``, a sample past its key's is dropped here, unread and unqueued (counted in the
-    budget): a flood neither grows the queue nor delays the recording."""
-    clock_key = f"ddvi/{run}/{topics.CLOCK}"
-
-    def on_data(sample: zenoh.Sample) -> None:
-        try:
-            key, payload = str(sample.key_expr), sample.payload.to_bytes()
-            if budget is not None:
-                if key == clock_key:
-                    _advance(budget, payload)
-                if not budget.take(key, payload):
-                    return
-            inbox.put((_DATA, key, payload, time.time_ns()))
-        except Exception:  # a zenoh callback must never raise
-            log.exception("monitor: could not queue a sample")
-
-    def on_alive(sample: zenoh.Sample) -> None:
-        try:
-            up = sample.kind == zenoh.SampleKind.PUT
-            inbox.put((_ALIVE, str(sample.key_expr), up, time.time_ns()))
-        except Exception:
-            log.exception("monitor: could not queue a liveliness change")
-
-    prefix = f"ddvi/{run}/"
-    data_sub = session.declare_subscriber(prefix + "**", on_data)
-    alive_sub = session.liveliness().declare_subscriber(
-        prefix + topics.alive_topic("*"), on_alive, history=True
-    )
-    return data_sub, alive_sub
-
-
 def _take_batch(mon: Monitor, inbox: Inbox, first: Item) -> None:
     """Handle ``first`` and what else gathered within ``BATCH_PERIOD`` (``BATCH_MAX`` at most)."""
     time.sleep(BATCH_PERIOD)
@@ -426,7 +375,7 @@ def _final_stats(ctx: ServiceContext, mon: Monitor, inbox: Inbox) -> None:
         except queue.Empty:
             continue
         mon.handle(item)
-        if item[0] == _DATA and item[1] == key:
+        if item[0] == DATA and item[1] == key:
             break
 
 
@@ -496,7 +445,7 @@ def _main(ctx: ServiceContext, live_address: str | None = None) -> int:
     inbox: Inbox = queue.SimpleQueue()
     # Subscribe before anything else: the other services declare themselves alive, and
     # publish, once they see this process alive (services.flight.runtime).
-    subs = _subscribe(ctx.bus.session, ctx.run, inbox, ctx.bus.budget)
+    subs = subscribe(ctx.bus.session, ctx.run, inbox, ctx.bus.budget)
     os.nice(NICENESS)  # this thread and those it starts later; not the callback's, started
     # the live view's threads are started here, so they yield to the flight too; before the
     # token, so that it serves once the launcher sees the monitor
