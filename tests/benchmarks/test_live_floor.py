@@ -43,3 +43,21 @@ def test_the_floor_serves_every_recorded_message_to_a_client_and_says_its_cpu(
     assert floor["served"] == 1000
     assert floor["received"] == 1000  # fewer than the backlog: nothing dropped
     assert floor["cpu_s"] > 0
+
+
+def test_the_floor_rows_average_the_rounds_and_say_what_the_live_view_took_above_them() -> None:
+    from benchmarks.live import floor_rows
+
+    floors = [
+        {"cpu_s": 2.0, "served": 100, "received": 100},
+        {"cpu_s": 1.0, "served": 100, "received": 99},
+    ]
+    live = [{"run_cpu_s": 43.0}, {"run_cpu_s": 45.0}]
+    without = [{"run_cpu_s": 40.0}, {"run_cpu_s": 40.0}]
+    floor, above = floor_rows(floors, live, without)
+    assert floor["project"] == pytest.approx(1.5)
+    assert floor["cost_ratio"] == pytest.approx(1.5 / 40.0)
+    assert "rounds: 2.00, 1.00" in floor["metric"]
+    assert "received 99" in floor["metric"]  # the fewest any round's client got
+    assert above["project"] == pytest.approx(44.0 - 40.0 - 1.5)
+    assert above["cost_ratio"] == pytest.approx(2.5 / 40.0)
