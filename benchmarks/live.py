@@ -16,6 +16,7 @@ live view took above it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import resource
@@ -23,9 +24,12 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
+
+import psutil
 
 from benchmarks.foxglove_client import FoxgloveClient
 from benchmarks.live_floor import measure_floor
@@ -74,6 +78,48 @@ def layout_topics(path: Path = LAYOUT) -> set[str]:
     return found
 
 
+MONITOR = "services.ground.monitoring.monitor"
+"""The module the monitor runs as: the process that serves the live view."""
+
+
+class ProcessCpu:
+    """The CPU seconds (user and system) of each process of a tree, by the module it runs
+    (``python -m MODULE``), read every ``period`` s while it runs: a process's last read
+    counts, so each misses at most its last ``period`` s."""
+
+    def __init__(self, pid: int, period: float = 0.2) -> None:
+        self.root = psutil.Process(pid)
+        self._latest: dict[int, tuple[str, float]] = {}  # pid -> (module, CPU s)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._poll, args=(period,), daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def _module(p: psutil.Process) -> str:
+        args = p.cmdline()
+        return args[args.index("-m") + 1] if "-m" in args[:-1] else " ".join(args[:2])
+
+    def _poll(self, period: float) -> None:
+        while True:
+            with contextlib.suppress(psutil.Error):
+                for p in [self.root, *self.root.children(recursive=True)]:
+                    # it may just have exited
+                    with contextlib.suppress(psutil.Error), p.oneshot():
+                        times = p.cpu_times()
+                        self._latest[p.pid] = (self._module(p), times.user + times.system)
+            if self._stop.wait(period):
+                return
+
+    def stop(self) -> dict[str, float]:
+        """Stop reading; CPU seconds by module."""
+        self._stop.set()
+        self._thread.join()
+        out: dict[str, float] = {}
+        for module, cpu in self._latest.values():
+            out[module] = out.get(module, 0.0) + cpu
+        return out
+
+
 def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
     """``ddvi run path --quiet`` (with ``--live`` on a free port and one client reading
     ``live``: EVERY or SHOWN channel): wall time, loop, CPU, summary and what the client
@@ -84,12 +130,14 @@ def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
     wanted = layout_topics() if live == SHOWN else None
     t0, cpu0, tree0 = time.perf_counter(), time.process_time(), _children_cpu()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    by_process = ProcessCpu(proc.pid)
     client = (
         FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=120, keep=False, topics=wanted)
         if live
         else None
     )
     stdout, stderr = proc.communicate()
+    modules = by_process.stop()
     wall = time.perf_counter() - t0
     run_cpu = _children_cpu() - tree0  # the launcher and every service (it waits for them)
     if proc.returncode != 0:
@@ -106,6 +154,8 @@ def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
         "recorded": summary["messages"]["recorded"],
         "received": sum(client.counts.values()) if client is not None else 0,
         "run_cpu_s": run_cpu,
+        "monitor_cpu_s": modules.get(MONITOR, 0.0),
+        "others_cpu_s": run_cpu - modules.get(MONITOR, 0.0),
         "client_cpu_s": client_cpu,
         "folder": folder,
     }
@@ -261,6 +311,8 @@ def _rows(
             ("wall_s", "whole run"),
             ("loop_s", "lock-step loop"),
             ("run_cpu_s", "CPU of the run's processes"),
+            ("monitor_cpu_s", "CPU of the monitor (the live view's process)"),
+            ("others_cpu_s", "CPU of the run's other processes"),
         )
     ]
     client_cpu = statistics.mean(r["client_cpu_s"] for r in live)

@@ -2,10 +2,10 @@
 a run's recorded messages (every channel of its recording: the bus's JSON messages and the
 scene) to one client subscribed to every channel, one ``Channel.log`` a message, at the pace
 the monitor received them (each message when its ``publish_time`` comes, counted from the
-first), with the server's backlog the monitor's.  No bus, no decoding, no recording: what
-serving those messages costs whatever serves them.  Its CPU (every thread of the serving
-process, the SDK's WebSocket workers among them, from the first message logged to two seconds
-after the last) is the floor under the live view's cost to a run.
+first), with the server's backlog and worker threads the monitor's.  No bus, no decoding, no
+recording: what serving those messages costs whatever serves them.  Its CPU (every thread of
+the serving process, the SDK's WebSocket workers among them, from the first message logged to
+two seconds after the last) is the floor under the live view's cost to a run.
 
     python -m benchmarks.live_floor RECORDING    # its CPU and the messages the client got
 """
@@ -13,6 +13,7 @@ after the last) is the floor under the live view's cost to a run.
 from __future__ import annotations
 
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -22,7 +23,7 @@ from typing import Any
 
 from benchmarks.foxglove_client import FoxgloveClient
 from services.ground.launch.launcher import free_port
-from services.ground.monitoring.live import BACKLOG
+from services.ground.monitoring.live import BACKLOG, SERVER_THREADS
 
 DRAIN_S = 2.0
 """Seconds the server is given after its last message to send what its queues hold."""
@@ -80,6 +81,7 @@ def serve(port: int, recording: Path) -> int:
         )
         for topic, name, encoding, data, message_encoding in described
     ]
+    os.environ.setdefault("TOKIO_WORKER_THREADS", SERVER_THREADS)  # the live view's
     server = foxglove.start_server(
         name="ddvi live floor",
         host="127.0.0.1",

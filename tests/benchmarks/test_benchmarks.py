@@ -1,6 +1,6 @@
 """The benchmarks' own measuring tools: the learning benchmark's search for the fewest
-iterations to a gain tolerance, the mission benchmark's memory of a process tree, the
-one-process run's split of its work among the services, the lock-step floor, what
+iterations to a gain tolerance, the mission benchmark's memory of a process tree and the live
+benchmark's CPU of each of its processes, the one-process run's split of its work among the services, the lock-step floor, what
 ``ddvi bench`` says when the benchmarks cannot be imported, and the twin benchmark's perfect
 learner on the truth's gains."""
 
@@ -16,6 +16,7 @@ import pytest
 
 from benchmarks.floor import run_floor
 from benchmarks.learning import EXPLICIT_STEP, ddvi_after, iterations_to
+from benchmarks.live import ProcessCpu
 from benchmarks.mission import _PeakMemory
 from ddvi_core.systems import BUILTIN_SYSTEMS, System
 from services.config import deployment_from_table, read_table
@@ -76,6 +77,21 @@ def test_peak_memory_counts_a_descendant_once() -> None:
         parent.stdin.close()
         parent.wait(timeout=30)
     assert 200e6 < peak < 400e6
+
+
+def test_process_cpu_reads_each_process_of_a_tree_by_the_module_it_runs() -> None:
+    """A child busy for about a second under ``python -m timeit`` is counted under
+    ``timeit``, its idle parent apart."""
+    code = (
+        "import subprocess, sys; "
+        "subprocess.run([sys.executable, '-m', 'timeit', '-n', '20000000', 'sum(range(1))'])"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL)
+    cpu = ProcessCpu(parent.pid, period=0.05)
+    parent.wait(timeout=120)
+    by_module = cpu.stop()
+    assert by_module["timeit"] > 0.5
+    assert sum(v for k, v in by_module.items() if k != "timeit") < 0.5 * by_module["timeit"]
 
 
 def test_one_process_timing_splits_its_work_among_the_services() -> None:

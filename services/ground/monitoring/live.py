@@ -32,6 +32,7 @@ import dataclasses
 import functools
 import json
 import logging
+import os
 import threading
 from typing import Any
 
@@ -56,6 +57,10 @@ from services.interface import SCHEMAS, Message, MessageError, topics
 log = logging.getLogger("ddvi.live")
 
 BACKLOG = 8192  # messages queued per client before its oldest are dropped (a few MB at most)
+SERVER_THREADS = "1"
+"""The SDK server's worker threads (tokio's ``TOKIO_WORKER_THREADS``, unless the environment
+sets it): one sends every client's frames; two cost about 12 % more CPU for the same messages
+(``benchmarks.live_floor``) and take both of a 2-core machine's cores from the flight."""
 _ROW = {"type": "array", "items": {"type": "number"}}
 LIVE_GAINS_SCHEMA: dict[str, Any] = {
     "title": "ddvi.live_gains",
@@ -167,6 +172,7 @@ class LiveServer:
             self._channel(topic, schema_name, schema)
         self.latch = Latch(self._resend)
         self.watched = threading.Event()  # set once a client has subscribed (LATCH_DELAY after)
+        os.environ.setdefault("TOKIO_WORKER_THREADS", SERVER_THREADS)  # read as the server starts
         self._server = foxglove.start_server(
             name=name,
             host=address.host,
