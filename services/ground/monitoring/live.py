@@ -163,13 +163,14 @@ class LiveServer:
 
         self._foxglove = foxglove
         self._context = foxglove.Context()
-        self._channels: dict[str, Any] = {}
-        self._schema_names: dict[str, str] = {}  # topic -> its channel's schema name
+        # topic -> (its channel, the schema name it was made with, latched): what a message
+        # on it needs, looked up once a message
+        self._routes: dict[str, tuple[Any, str, bool]] = {}
         self.references = references  # deputy -> (K*, L*), flattened
         self._time = -1
         self.counters = {"served": 0, "errors": 0, "unserved": 0}
         for topic, (schema_name, schema) in advertise.items():
-            self._channel(topic, schema_name, schema)
+            self._route(topic, schema_name, schema)
         self.latch = Latch(self._resend)
         self.watched = threading.Event()  # set once a client has subscribed (LATCH_DELAY after)
         os.environ.setdefault("TOKIO_WORKER_THREADS", SERVER_THREADS)  # read as the server starts
@@ -183,22 +184,26 @@ class LiveServer:
             message_backlog_size=BACKLOG,
         )
 
-    def _channel(self, topic: str, schema_name: str, schema: dict[str, Any] | Any) -> Any:
-        """``topic``'s channel, made on first use with ``schema``: a JSON schema (a dict: the
-        recording's), or a Foxglove schema from the SDK (the scene's, protobuf)."""
-        channel = self._channels.get(topic)
-        if channel is None:
+    def _route(
+        self, topic: str, schema_name: str, schema: dict[str, Any] | Any
+    ) -> tuple[Any, str, bool]:
+        """``topic``'s route (its channel, schema name, latched), its channel made on first use
+        with ``schema``: a JSON schema (a dict: the recording's), or a Foxglove schema from the
+        SDK (the scene's, protobuf)."""
+        route = self._routes.get(topic)
+        if route is None:
             if isinstance(schema, dict):
                 data = json.dumps(schema).encode()  # the recording's schema bytes
                 schema = self._foxglove.Schema(name=schema_name, encoding="jsonschema", data=data)
                 encoding = "json"
             else:
                 encoding = schema.encoding
-            channel = self._channels[topic] = self._foxglove.Channel(
+            channel = self._foxglove.Channel(
                 topic, schema=schema, message_encoding=encoding, context=self._context
             )
-            self._schema_names[topic] = schema_name
-        return channel
+            latched = schema_kind(schema_name) in LATCHED
+            route = self._routes[topic] = (channel, schema_name, latched)
+        return route
 
     def _send(
         self,
@@ -210,11 +215,13 @@ class LiveServer:
     ) -> None:
         """Serve ``payload()`` on ``topic`` at ``t`` ns if a client subscribes to it; keep it
         for a client to come when its channel is latched."""
-        channel = self._channel(topic, schema_name, schema)
-        if self._schema_names[topic] != schema_name:  # one channel a topic: a stray schema
+        channel, advertised, latched = self._routes.get(topic) or self._route(
+            topic, schema_name, schema
+        )
+        if advertised != schema_name:  # one channel a topic: a stray schema
             self.counters["unserved"] += 1
             return
-        if schema_kind(schema_name) in LATCHED:
+        if latched:
             self.latch.keep(topic, payload, t)
         if channel.has_sinks():  # nobody subscribed: not even encoded
             channel.log(payload(), log_time=t)
@@ -222,7 +229,7 @@ class LiveServer:
 
     def _resend(self, topic: str, data: bytes, t: int) -> None:
         """A latched message, to a client that has just subscribed (the latch's thread)."""
-        self._channels[topic].log(data, log_time=t)
+        self._routes[topic][0].log(data, log_time=t)
 
     def _failed(self, what: str) -> None:
         n = self.counters["errors"] = self.counters["errors"] + 1
@@ -304,8 +311,8 @@ class LiveServer:
 
     def subscribed(self, topic: str) -> bool:
         """Whether a client subscribes to ``topic`` now."""
-        channel = self._channels.get(topic)
-        return channel is not None and channel.has_sinks()
+        route = self._routes.get(topic)
+        return route is not None and route[0].has_sinks()
 
     def close(self) -> None:
         """Stop serving (clients see the connection close); idempotent."""
