@@ -1,8 +1,8 @@
 """The benchmarks' own measuring tools: the learning benchmark's search for the fewest
 iterations to a gain tolerance, the mission benchmark's memory of a process tree and the live
-benchmark's CPU of each of its processes, the one-process run's split of its work among the services, the lock-step floor, what
-``ddvi bench`` says when the benchmarks cannot be imported, and the twin benchmark's perfect
-learner on the truth's gains."""
+benchmark's CPU of each of its processes, the one-process run's split of its work among the
+services, the lock-step floor, what ``ddvi bench`` says when the benchmarks cannot be
+imported, and the twin benchmark's perfect learner on the truth's gains."""
 
 from __future__ import annotations
 

@@ -61,3 +61,31 @@ def test_the_floor_rows_average_the_rounds_and_say_what_the_live_view_took_above
     assert "received 99" in floor["metric"]  # the fewest any round's client got
     assert above["project"] == pytest.approx(44.0 - 40.0 - 1.5)
     assert above["cost_ratio"] == pytest.approx(2.5 / 40.0)
+
+
+def test_the_live_rows_say_what_the_live_view_added_to_the_monitor_against_the_run() -> None:
+    from benchmarks.live import ADDED_TARGET, _rows
+
+    def run(monitor: float, others: float) -> dict[str, float]:
+        cpu = monitor + others
+        return {
+            "wall_s": 20.0,
+            "loop_s": 18.0,
+            "run_cpu_s": cpu,
+            "monitor_cpu_s": monitor,
+            "others_cpu_s": others,
+            "client_cpu_s": 2.0,
+            "received": 110,
+            "recorded": 100,
+        }
+
+    live = [run(10.0, 30.0), run(11.0, 26.0)]
+    without = [run(8.0, 32.0), run(8.0, 28.0)]
+    rows = {r["metric"].split(" (")[0]: r for r in _rows(40.0, "every channel", live, without)}
+    added = rows["CPU the live view added to the monitor, a client of every channel"]
+    assert added["project"] == pytest.approx(10.5 - 8.0)
+    assert added["cost_ratio"] == pytest.approx(2.5 / 38.0)
+    assert added["target"] == ADDED_TARGET
+    monitor = rows["40-orbit mission, CPU of the monitor"]
+    assert monitor["cost_ratio"] == pytest.approx(10.5 / 8.0)
+    assert monitor["target"] == ""  # the target is the run's, not the monitor's own
