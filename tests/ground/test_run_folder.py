@@ -1,6 +1,7 @@
 """Run folders nobody can plant: another user who can write the output root pre-creates the
 run's folder (credentials files open to all, a bus.json link to a file of theirs); the launcher
-never writes into or through them, flies in a folder of a new name, private to its owner."""
+never writes into or through them, flies in a folder of a new name, private to its owner.  A
+run that cannot start (its network namespaces missing) makes no folder at all."""
 
 from __future__ import annotations
 
@@ -94,3 +95,21 @@ def test_the_launcher_flies_in_a_new_private_folder_beside_a_planted_one(
     assert target.read_text() == "theirs\n"
     assert all(path.read_bytes() == text for path, text in planted.items())
     assert sorted(p.name for p in (root / predicted).iterdir()) == ["bus.json", SECURITY_DIR]
+
+
+def test_a_run_whose_network_namespaces_are_missing_says_so_and_leaves_no_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A deployment placing services in namespaces that do not exist is refused before its
+    folder (and its credentials) is made."""
+    dep_file = tmp_path / "hosts.toml"
+    hosts = '[bus]\nmode = "client"\nport = 7461\n'
+    hosts += '[[host]]\nnetns = "ddvi-absent"\nservices = ["nav-*"]\n'
+    dep_file.write_text(MISSION + hosts)
+    root = tmp_path / "runs"
+    launcher = Launcher(load_deployment(str(dep_file)), out_root=str(root), quiet=True)
+    assert launcher.execute() == 1
+    err = capsys.readouterr().err
+    assert "network namespaces ['ddvi-absent'] do not exist" in err
+    assert "ddvi netns up" in err
+    assert not root.exists() or not any(root.iterdir())

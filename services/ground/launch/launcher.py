@@ -129,12 +129,7 @@ class Launcher:
         if refused is not None:
             self.say(refused, error=True)
             return lifecycle.EXIT_USAGE
-        if (status := self._make_folder()) is not None:
-            return status
-        for warning in warnings:
-            self.say(f"warning: {warning}")
-        for warning in holding_warnings(self.dep) + reentry_warnings(self.dep):
-            self.say(f"warning: {warning}")
+        # before the folder: a run that cannot start leaves no credentials behind
         if missing := [h.netns for h in self.dep.host if not netns_exists(h.netns)]:
             self.say(
                 f"network namespaces {missing} do not exist: run `ddvi netns up "
@@ -142,6 +137,12 @@ class Launcher:
                 error=True,
             )
             return 1
+        if (status := self._make_folder()) is not None:
+            return status
+        for warning in warnings:
+            self.say(f"warning: {warning}")
+        for warning in holding_warnings(self.dep) + reentry_warnings(self.dep):
+            self.say(f"warning: {warning}")
         self.signals.install()
         try:
             status = self._open_and_fly()
