@@ -1,8 +1,9 @@
 """The live view's floor: foxglove-sdk's WebSocket server alone, in a process of its own, serving
 a run's recorded messages (every channel of its recording: the bus's JSON messages and the
 scene) to one client subscribed to every channel, one ``Channel.log`` a message, at the pace
-the monitor received them (each message when its ``publish_time`` comes, counted from the
-first), with the server's backlog and worker threads the monitor's.  No bus, no decoding, no
+the monitor received them and handed over as the live view hands them (each message queued
+when its ``publish_time`` comes, counted from the first; the queue handed over every
+``HANDOFF_S``), with the server's backlog and worker threads the monitor's.  No bus, no decoding, no
 recording: what serving those messages costs whatever serves them.  Its CPU (every thread of
 the serving process, the SDK's WebSocket workers among them, from the first message logged to
 two seconds after the last) is the floor under the live view's cost to a run.
@@ -24,11 +25,10 @@ from typing import Any
 from benchmarks.foxglove_client import FoxgloveClient
 from services.ground.launch.launcher import free_port
 from services.ground.monitoring.live import BACKLOG, SERVER_THREADS
+from services.ground.monitoring.live_handoff import HANDOFF_S
 
 DRAIN_S = 2.0
 """Seconds the server is given after its last message to send what its queues hold."""
-AHEAD_S = 0.001
-"""A message due later than this is waited for; earlier ones go at once (no sleep each)."""
 
 
 def _cpu() -> float:
@@ -98,11 +98,19 @@ def serve(port: int, recording: Path) -> int:
             time.sleep(0.05)
         cpu0 = _cpu()
         start, first = time.monotonic(), min(m[3] for m in messages)
+        handover, queued = start + HANDOFF_S, []
         for index, data, log_time, publish_time in messages:
-            wait = start + (publish_time - first) / 1e9 - time.monotonic()
-            if wait > AHEAD_S:
-                time.sleep(wait)
-            channels[index].log(data, log_time=log_time)
+            due = start + (publish_time - first) / 1e9
+            while due > handover:  # this message is queued after the next handover
+                if queued:
+                    time.sleep(max(handover - time.monotonic(), 0.0))
+                    for channel, queued_data, queued_time in queued:
+                        channel.log(queued_data, log_time=queued_time)
+                    queued.clear()
+                handover += HANDOFF_S
+            queued.append((channels[index], data, log_time))
+        for channel, queued_data, queued_time in queued:
+            channel.log(queued_data, log_time=queued_time)
         time.sleep(DRAIN_S)
         cpu = _cpu() - cpu0
     finally:

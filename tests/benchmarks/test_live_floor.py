@@ -52,15 +52,16 @@ def test_the_floor_rows_average_the_rounds_and_say_what_the_live_view_took_above
         {"cpu_s": 2.0, "served": 100, "received": 100},
         {"cpu_s": 1.0, "served": 100, "received": 99},
     ]
-    live = [{"run_cpu_s": 43.0}, {"run_cpu_s": 45.0}]
-    without = [{"run_cpu_s": 40.0}, {"run_cpu_s": 40.0}]
+    live = [{"run_cpu_s": 43.0, "monitor_cpu_s": 11.0}, {"run_cpu_s": 45.0, "monitor_cpu_s": 12.0}]
+    without = [{"run_cpu_s": 40.0, "monitor_cpu_s": 9.0}, {"run_cpu_s": 40.0, "monitor_cpu_s": 8.0}]
     floor, above = floor_rows(floors, live, without)
     assert floor["project"] == pytest.approx(1.5)
     assert floor["cost_ratio"] == pytest.approx(1.5 / 40.0)
     assert "rounds: 2.00, 1.00" in floor["metric"]
     assert "received 99" in floor["metric"]  # the fewest any round's client got
-    assert above["project"] == pytest.approx(44.0 - 40.0 - 1.5)
-    assert above["cost_ratio"] == pytest.approx(2.5 / 40.0)
+    # the monitor's added CPU (11.5 - 8.5), not the run's (4.0): less the floor
+    assert above["project"] == pytest.approx(11.5 - 8.5 - 1.5)
+    assert above["cost_ratio"] == pytest.approx(1.5 / 40.0)
 
 
 def test_the_live_rows_say_what_the_live_view_added_to_the_monitor_against_the_run() -> None:

@@ -327,7 +327,7 @@ def test_ddvi_run_live_serves_every_topic_at_simulation_time(
     recorded, _ = read_recording(folder / "recording.mcap")
     served = {m.topic for m in client.messages}
     recorded_topics = {r.topic for r in recorded if r.topic != "alive/monitor"}
-    assert recorded_topics <= served
+    assert recorded_topics <= served, recorded_topics - served
     first = {m.topic: m.json() for m in reversed(client.messages) if m.topic in recorded_topics}
     for r in recorded:
         if not r.topic.startswith("alive/") and r.data["seq"] == first[r.topic]["seq"]:

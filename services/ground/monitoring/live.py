@@ -21,8 +21,10 @@ is alive, each controller's phase, the gains against K* and the scene without wa
 to change.
 
 The server never holds the caller up: a message no client subscribes to is not even encoded
-(but a latched channel's last, when a client subscribes), and a client that reads too slowly
-loses its oldest messages (``BACKLOG``) instead of slowing the sender.  An error in the live
+(but a latched channel's last, when a client subscribes), the others are queued and handed to
+the server in bursts from a thread of their own (``services.ground.monitoring.live_handoff``),
+and a client that reads too slowly loses its oldest messages (``BACKLOG``) instead of slowing
+the sender.  An error in the live
 view is logged and counted; it never reaches the recording.
 """
 
@@ -34,6 +36,7 @@ import json
 import logging
 import os
 import threading
+import time
 from typing import Any
 
 import orjson
@@ -42,6 +45,7 @@ from services.bus import worth_saying
 from services.config import Deployment
 from services.ground.analysis.outcome import TIME_MASTER
 from services.ground.monitoring.live_address import LiveAddress
+from services.ground.monitoring.live_handoff import Handoff
 from services.ground.monitoring.live_latch import LATCH_DELAY, LATCHED, Latch, Payload, schema_kind
 from services.ground.monitoring.scene import SceneMessage
 from services.ground.storage.recording import (
@@ -61,6 +65,9 @@ SERVER_THREADS = "1"
 """The SDK server's worker threads (tokio's ``TOKIO_WORKER_THREADS``, unless the environment
 sets it): one sends every client's frames; two cost about 12 % more CPU for the same messages
 (``benchmarks.live_floor``) and take both of a 2-core machine's cores from the flight."""
+CLOSE_DRAIN_S = 0.2
+"""Wall seconds the server is given to send its last messages before it stops (it has no call
+that waits for its queues, and stopping drops what they hold)."""
 _ROW = {"type": "array", "items": {"type": "number"}}
 LIVE_GAINS_SCHEMA: dict[str, Any] = {
     "title": "ddvi.live_gains",
@@ -183,6 +190,7 @@ class LiveServer:
             context=self._context,
             message_backlog_size=BACKLOG,
         )
+        self._handoff = Handoff(self._server.broadcast_time)
 
     def _route(
         self, topic: str, schema_name: str, schema: dict[str, Any] | Any
@@ -224,7 +232,7 @@ class LiveServer:
         if latched:
             self.latch.keep(topic, payload, t)
         if channel.has_sinks():  # nobody subscribed: not even encoded
-            channel.log(payload(), log_time=t)
+            self._handoff.put(channel, payload(), t)
             self.counters["served"] += 1
 
     def _resend(self, topic: str, data: bytes, t: int) -> None:
@@ -244,7 +252,7 @@ class LiveServer:
             t = ns(msg.t)
             if msg.schema == "clock" and msg.src == TIME_MASTER and t > self._time:
                 self._time = t
-                self._server.broadcast_time(t)
+                self._handoff.time(t)
             if recorded is None:
                 payload: Payload = functools.partial(_json, message_record(msg))
             else:
@@ -317,11 +325,14 @@ class LiveServer:
     def close(self) -> None:
         """Stop serving (clients see the connection close); idempotent."""
         self.latch.close()
+        self._handoff.close()
+        time.sleep(CLOSE_DRAIN_S)
         try:
             self._server.stop()
         except Exception:
             log.exception("live view: could not stop the server")
-        log.info("live view closed: %s", {**self.counters, "latched": self.latch.sent})
+        counters = {**self.counters, "latched": self.latch.sent, "lost": self._handoff.errors}
+        log.info("live view closed: %s", counters)
 
 
 def live_server(
