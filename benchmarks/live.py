@@ -32,7 +32,7 @@ from typing import Any
 import psutil
 
 from benchmarks.foxglove_client import FoxgloveClient
-from benchmarks.live_floor import measure_floor
+from benchmarks.live_floor import FloorServing
 from benchmarks.mission import _clock_span, _row, skipped_row
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
@@ -123,10 +123,12 @@ class ProcessCpu:
         return out
 
 
-def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
+def run_once(path: Path, out: Path, live: str | None, floor: Path | None = None) -> dict[str, Any]:
     """``ddvi run path --quiet`` (with ``--live`` on a free port and one client reading
     ``live``: EVERY or SHOWN channel): wall time, loop, CPU, summary and what the client
-    received."""
+    received.  ``floor``: a recording the floor's server (``benchmarks.live_floor``, a
+    process of its own) serves beside the run to this process's client of every channel,
+    started with the run; what it took is under "floor"."""
     port = free_port()
     cmd = [sys.executable, "-m", "services.cli", "run", str(path), "--quiet", "--output", str(out)]
     cmd += ["--live", f"127.0.0.1:{port}"] if live else []
@@ -134,6 +136,7 @@ def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
     t0, cpu0, tree0 = time.perf_counter(), time.process_time(), _children_cpu()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     by_process = ProcessCpu(proc.pid)
+    beside = FloorServing(floor) if floor is not None else None
     client = (
         FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=120, keep=False, topics=wanted)
         if live
@@ -147,6 +150,7 @@ def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
         raise RuntimeError(f"ddvi run {path} failed ({proc.returncode}): {stderr[-2000:]}")
     if client is not None:
         client.wait_closed(30)
+    floor_result = beside.result() if beside is not None else None  # after the run's CPU
     client_cpu = time.process_time() - cpu0  # this process: the client's reading
     folder = Path(stdout.strip().splitlines()[-1])
     summary = json.loads((folder / "summary.json").read_text())
@@ -161,6 +165,7 @@ def run_once(path: Path, out: Path, live: str | None) -> dict[str, Any]:
         "others_cpu_s": run_cpu - modules.get(MONITOR, 0.0),
         "client_cpu_s": client_cpu,
         "folder": folder,
+        "floor": floor_result,
     }
 
 
@@ -204,16 +209,17 @@ def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str,
     runs: dict[str | None, list[dict[str, Any]]] = {None: [], EVERY: [], SHOWN: []}
     with tempfile.TemporaryDirectory(prefix="ddvi-bench-live-") as tmp:
         path = write_deployment(table, Path(tmp), "mission")
-        floors = []
+        beside = []  # the mission without --live, the floor serving beside it
         for _ in range(rounds or (1 if quick else 2)):
             for live in runs:
                 runs[live].append(run_once(path, Path(tmp) / "runs", live))
-            floors.append(measure_floor(runs[None][-1]["folder"] / RECORDING))
+            recording = runs[None][-1]["folder"] / RECORDING
+            beside.append(run_once(path, Path(tmp) / "runs", None, floor=recording))
     rows = []
     for live in (EVERY, SHOWN):
         rows += _rows(table["run"]["orbits"], live, runs[live], runs[None])
-    rows += floor_rows(floors, runs[EVERY], runs[None])
-    everything = [r for rs in runs.values() for r in rs]
+    rows += floor_rows(table["run"]["orbits"], beside, runs[EVERY], runs[None])
+    everything = [r for rs in [*runs.values(), beside] for r in rs]
     same = all(r["errors"] == runs[None][0]["errors"] for r in everything)
     rows.append(
         _row(
@@ -230,11 +236,18 @@ def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str,
 
 
 def floor_rows(
-    floors: list[dict[str, Any]], live: list[dict[str, Any]], without: list[dict[str, Any]]
+    orbits: float,
+    beside: list[dict[str, Any]],
+    live: list[dict[str, Any]],
+    without: list[dict[str, Any]],
 ) -> list[dict[str, Any]]:
-    """The floor of each round (the SDK alone serving that round's recording without
-    ``--live``) against the run's CPU without, and what the live view with a client of every
-    channel added to the monitor above it."""
+    """The floor: each round's mission without ``--live`` while foxglove-sdk's server alone
+    serves that round's recording to a client of every channel beside it (``beside``, each
+    with its "floor"): the mission's figures against without (what serving and reading the
+    messages on the same machine costs the flight, whatever serves them), the floor's CPU
+    against the run's, and what the live view with a client of every channel added to the
+    monitor above it."""
+    floors = [r["floor"] for r in beside]
     run_cpu = statistics.mean(r["run_cpu_s"] for r in without)
     floor_cpu = statistics.mean(f["cpu_s"] for f in floors)
     each = ", ".join(f"{f['cpu_s']:.2f}" for f in floors)
@@ -244,11 +257,28 @@ def floor_rows(
         r["monitor_cpu_s"] for r in without
     )
     above = added - floor_cpu  # read in the monitor: the other processes' noise is not in it
+    rows = [
+        alternated_row(
+            f"{orbits:g}-orbit mission, {figure}, beside the floor (no --live)",
+            key,
+            beside,
+            without,
+            "without --live",
+            "",
+            "live",
+        )
+        for key, figure in (
+            ("wall_s", "whole run"),
+            ("loop_s", "lock-step loop"),
+            ("run_cpu_s", "CPU of the run's processes"),
+        )
+    ]
     return [
+        *rows,
         _row(
             "floor: foxglove-sdk's server alone serving each round's recorded messages "
-            f"({served:,}; a client of every channel received {received:,}), CPU of its "
-            f"process (benchmarks.live_floor; rounds: {each})",
+            f"({served:,}; a client of every channel received {received:,}) beside the "
+            f"mission, CPU of its process (benchmarks.live_floor; rounds: {each})",
             "s",
             floor_cpu,
             run_cpu,

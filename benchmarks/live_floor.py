@@ -119,27 +119,48 @@ def serve(port: int, recording: Path) -> int:
     return 0
 
 
+class FloorServing:
+    """The floor's serving process, started on ``recording`` with this process's client of
+    every channel reading it; ``result`` waits for it.  Until then it is not waited for, so a
+    run measured meanwhile by its children's CPU (``resource.RUSAGE_CHILDREN``) does not
+    count it."""
+
+    def __init__(self, recording: Path) -> None:
+        port = free_port()
+        cmd = [sys.executable, "-m", "benchmarks.live_floor", "--serve", str(port), str(recording)]
+        self._proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        try:
+            assert self._proc.stdout is not None
+            if self._proc.stdout.readline().strip() != "ready":
+                raise RuntimeError(f"the floor's server did not start ({self._proc.wait(30)})")
+            self.client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=60, keep=False)
+        except BaseException:
+            self._stop()
+            raise
+
+    def _stop(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+
+    def result(self) -> dict[str, Any]:
+        """The serving process's CPU (s) and the messages it served, once it has served them
+        all, and those the client received."""
+        try:
+            out, _ = self._proc.communicate(timeout=600)
+            self.client.close()
+        finally:
+            self._stop()
+        if self._proc.returncode != 0:
+            raise RuntimeError(f"the floor's server failed ({self._proc.returncode})")
+        result = json.loads(out.strip().splitlines()[-1])
+        return {**result, "received": sum(self.client.counts.values())}
+
+
 def measure_floor(recording: Path) -> dict[str, Any]:
     """The floor of ``recording``: the serving process's CPU (s), the messages it served and
     those the client (this process, every channel) received."""
-    port = free_port()
-    cmd = [sys.executable, "-m", "benchmarks.live_floor", "--serve", str(port), str(recording)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        if proc.stdout.readline().strip() != "ready":
-            raise RuntimeError(f"the floor's server did not start ({proc.wait(timeout=30)})")
-        client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=60, keep=False)
-        out, _ = proc.communicate(timeout=600)
-        client.close()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    if proc.returncode != 0:
-        raise RuntimeError(f"the floor's server failed ({proc.returncode})")
-    result = json.loads(out.strip().splitlines()[-1])
-    return {**result, "received": sum(client.counts.values())}
+    return FloorServing(recording).result()
 
 
 def main(argv: list[str] | None = None) -> int:

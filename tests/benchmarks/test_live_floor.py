@@ -48,13 +48,21 @@ def test_the_floor_serves_every_recorded_message_to_a_client_and_says_its_cpu(
 def test_the_floor_rows_average_the_rounds_and_say_what_the_live_view_took_above_them() -> None:
     from benchmarks.live import floor_rows
 
-    floors = [
-        {"cpu_s": 2.0, "served": 100, "received": 100},
-        {"cpu_s": 1.0, "served": 100, "received": 99},
+    def run(wall: float, cpu: float, monitor: float) -> dict[str, float]:
+        return {"wall_s": wall, "loop_s": wall - 4.0, "run_cpu_s": cpu, "monitor_cpu_s": monitor}
+
+    beside = [
+        run(21.0, 42.0, 9.0) | {"floor": {"cpu_s": 2.0, "served": 100, "received": 100}},
+        run(22.0, 43.0, 8.0) | {"floor": {"cpu_s": 1.0, "served": 100, "received": 99}},
     ]
-    live = [{"run_cpu_s": 43.0, "monitor_cpu_s": 11.0}, {"run_cpu_s": 45.0, "monitor_cpu_s": 12.0}]
-    without = [{"run_cpu_s": 40.0, "monitor_cpu_s": 9.0}, {"run_cpu_s": 40.0, "monitor_cpu_s": 8.0}]
-    floor, above = floor_rows(floors, live, without)
+    live = [run(21.0, 43.0, 11.0), run(21.0, 45.0, 12.0)]
+    without = [run(20.0, 40.0, 9.0), run(20.0, 40.0, 8.0)]
+    rows = floor_rows(40.0, beside, live, without)
+    wall, loop, cpu, floor, above = rows
+    assert wall["metric"].startswith("40-orbit mission, whole run, beside the floor")
+    assert wall["cost_ratio"] == pytest.approx(21.5 / 20.0)
+    assert loop["cost_ratio"] == pytest.approx(17.5 / 16.0)
+    assert cpu["cost_ratio"] == pytest.approx(42.5 / 40.0)
     assert floor["project"] == pytest.approx(1.5)
     assert floor["cost_ratio"] == pytest.approx(1.5 / 40.0)
     assert "rounds: 2.00, 1.00" in floor["metric"]
