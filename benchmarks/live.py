@@ -6,9 +6,10 @@ each (``--rounds N``: N each; ``--quick``: 4 orbits, one run each).  Whole-run w
 the lock-step loop (the first to the last clock the monitor recorded, by receive wall time)
 and the CPU of the run's processes; the client's CPU and messages; whether the live runs'
 final errors are the others' (the live view must not touch the flight); and the floor under
-the live view's cost, foxglove-sdk's server alone serving each round's recorded messages to a
-client of every channel (``benchmarks.live_floor``), its CPU against the run's, with what the
-live view took above it.
+the live view's cost: the same mission without ``--live`` while foxglove-sdk's server alone
+(``benchmarks.live_floor``, a process of its own) serves the round's recorded messages to a
+client of every channel beside it, the mission's figures and the server's CPU, with what the
+live view added to the monitor above it.
 
     python -m benchmarks.live [--quick] [--rounds N] [--json]
 """

@@ -3,10 +3,11 @@ a run's recorded messages (every channel of its recording: the bus's JSON messag
 scene) to one client subscribed to every channel, one ``Channel.log`` a message, at the pace
 the monitor received them and handed over as the live view hands them (each message queued
 when its ``publish_time`` comes, counted from the first; the queue handed over every
-``HANDOFF_S``), with the server's backlog and worker threads the monitor's.  No bus, no decoding, no
-recording: what serving those messages costs whatever serves them.  Its CPU (every thread of
-the serving process, the SDK's WebSocket workers among them, from the first message logged to
-two seconds after the last) is the floor under the live view's cost to a run.
+``HANDOFF_S``), with the server's backlog and worker threads the monitor's.  No bus, no
+decoding, no recording: what serving those messages costs whatever serves them.  Its CPU
+(every thread of the serving process, the SDK's WebSocket workers among them, from the first
+message logged to two seconds after the last) is the floor under the live view's cost to a
+run.
 
     python -m benchmarks.live_floor RECORDING    # its CPU and the messages the client got
 """

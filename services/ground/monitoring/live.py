@@ -24,8 +24,7 @@ The server never holds the caller up: a message no client subscribes to is not e
 (but a latched channel's last, when a client subscribes), the others are queued and handed to
 the server in bursts from a thread of their own (``services.ground.monitoring.live_handoff``),
 and a client that reads too slowly loses its oldest messages (``BACKLOG``) instead of slowing
-the sender.  An error in the live
-view is logged and counted; it never reaches the recording.
+the sender.  An error in the live view is logged and counted; it never reaches the recording.
 """
 
 from __future__ import annotations
