@@ -236,6 +236,12 @@ def bench_live(quick: bool = False, rounds: int | None = None) -> list[dict[str,
     return rows
 
 
+def monitor_added(live: list[dict[str, Any]], without: list[dict[str, Any]]) -> float:
+    """The CPU seconds the live view added to the monitor: its mean with less without."""
+    with_live = statistics.mean(r["monitor_cpu_s"] for r in live)
+    return with_live - statistics.mean(r["monitor_cpu_s"] for r in without)
+
+
 def floor_rows(
     orbits: float,
     beside: list[dict[str, Any]],
@@ -254,10 +260,8 @@ def floor_rows(
     each = ", ".join(f"{f['cpu_s']:.2f}" for f in floors)
     served = min(f["served"] for f in floors)
     received = min(f["received"] for f in floors)
-    added = statistics.mean(r["monitor_cpu_s"] for r in live) - statistics.mean(
-        r["monitor_cpu_s"] for r in without
-    )
-    above = added - floor_cpu  # read in the monitor: the other processes' noise is not in it
+    # read in the monitor: the other processes' noise is not in it
+    above = monitor_added(live, without) - floor_cpu
     rows = [
         alternated_row(
             f"{orbits:g}-orbit mission, {figure}, beside the floor (no --live)",
@@ -353,9 +357,7 @@ def _rows(
         )
     ]
     run_cpu = statistics.mean(r["run_cpu_s"] for r in without)
-    added = statistics.mean(r["monitor_cpu_s"] for r in live) - statistics.mean(
-        r["monitor_cpu_s"] for r in without
-    )
+    added = monitor_added(live, without)
     rows.append(
         _row(
             f"CPU the live view added to the monitor, a client of {what} (with less without)",

@@ -325,7 +325,8 @@ class LiveServer:
         """Stop serving (clients see the connection close); idempotent."""
         self.latch.close()
         self._handoff.close()
-        time.sleep(CLOSE_DRAIN_S)
+        if self.counters["served"] or self.latch.sent:  # a client may have some still to come
+            time.sleep(CLOSE_DRAIN_S)
         try:
             self._server.stop()
         except Exception:
