@@ -45,7 +45,14 @@ from services.config import Deployment
 from services.ground.analysis.outcome import TIME_MASTER
 from services.ground.monitoring.live_address import LiveAddress
 from services.ground.monitoring.live_handoff import Handoff
-from services.ground.monitoring.live_latch import LATCH_DELAY, LATCHED, Latch, Payload, schema_kind
+from services.ground.monitoring.live_latch import (
+    LATCH_DELAY,
+    LATCHED,
+    Latch,
+    Payload,
+    payload_bytes,
+    schema_kind,
+)
 from services.ground.monitoring.scene import SceneMessage
 from services.ground.storage.recording import (
     ALIVE_SCHEMA,
@@ -108,9 +115,10 @@ def live_gains_topic(deputy: str) -> str:
 
 
 @functools.cache
-def _bus_schema(name: str) -> dict[str, Any]:
-    """The recording's JSON schema of a bus message type, built once."""
-    return message_json_schema(SCHEMAS[name])
+def _bus_channel(name: str) -> tuple[str, dict[str, Any]]:
+    """A bus message type's channel schema: its name (``ddvi.<type>``) and the recording's
+    JSON schema, built once."""
+    return f"ddvi.{name}", message_json_schema(SCHEMAS[name])
 
 
 def reference_gains(dep: Deployment) -> dict[str, tuple[list[float], list[float]]]:
@@ -220,7 +228,7 @@ class LiveServer:
         payload: Payload,
         t: int,
     ) -> None:
-        """Serve ``payload()`` on ``topic`` at ``t`` ns if a client subscribes to it; keep it
+        """Serve ``payload`` on ``topic`` at ``t`` ns if a client subscribes to it; keep it
         for a client to come when its channel is latched."""
         channel, advertised, latched = self._routes.get(topic) or self._route(
             topic, schema_name, schema
@@ -231,7 +239,7 @@ class LiveServer:
         if latched:
             self.latch.keep(topic, payload, t)
         if channel.has_sinks():  # nobody subscribed: not even encoded
-            self._handoff.put(channel, payload(), t)
+            self._handoff.put(channel, payload_bytes(payload), t)
             self.counters["served"] += 1
 
     def _resend(self, topic: str, data: bytes, t: int) -> None:
@@ -252,11 +260,11 @@ class LiveServer:
             if msg.schema == "clock" and msg.src == TIME_MASTER and t > self._time:
                 self._time = t
                 self._handoff.time(t)
-            if recorded is None:
-                payload: Payload = functools.partial(_json, message_record(msg))
-            else:
-                payload = functools.partial(bytes, recorded)  # bytes of bytes: no copy
-            self._send(topic, f"ddvi.{msg.schema}", _bus_schema(msg.schema), payload, t)
+            payload: Payload = (
+                recorded if recorded is not None else functools.partial(_json, message_record(msg))
+            )
+            name, schema = _bus_channel(msg.schema)
+            self._send(topic, name, schema, payload, t)
             if msg.schema == "gains":
                 self._gains(topic.split("/")[1], msg)  # the topic's deputy, not the body's
         except Exception:
@@ -286,8 +294,7 @@ class LiveServer:
     def scene(self, msg: SceneMessage) -> None:
         """Serve a scene message (``services.ground.monitoring.scene``), as recorded."""
         try:
-            data = msg.data
-            self._send(msg.topic, msg.schema.name, msg.schema, lambda: data, msg.log_ns)
+            self._send(msg.topic, msg.schema.name, msg.schema, msg.data, msg.log_ns)
         except Exception:
             self._failed(msg.topic)
 
@@ -347,9 +354,7 @@ def live_server(
     channels ((topic, Foxglove schema); ``services.ground.monitoring.scene.Scene.channels``).
     K* is solved on a thread of its own (a second of imports and Riccati solves, which must
     not hold the caller up): the live gains carry an empty K* until it is known."""
-    advertise: dict[str, tuple[str, Any]] = {
-        t: (f"ddvi.{s}", _bus_schema(s)) for t, s in dep.topics().items()
-    }
+    advertise: dict[str, tuple[str, Any]] = {t: _bus_channel(s) for t, s in dep.topics().items()}
     for d in dep.deputy:
         advertise[live_gains_topic(d.name)] = ("ddvi.live_gains", LIVE_GAINS_SCHEMA)
     if liveliness:

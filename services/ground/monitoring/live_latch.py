@@ -23,8 +23,14 @@ LATCH_DELAY = 0.25
 """Wall seconds between a subscription and its latched message: the server has routed the
 channel to the client long before (it does so right after telling)."""
 
-Payload = Callable[[], bytes]
-"""A latched message's bytes, made when it is sent (the live gains take the K* known then)."""
+Payload = bytes | Callable[[], bytes]
+"""A message's bytes, or how to make them when it is sent (the live gains take the K* known
+then; a message nobody subscribes to is never encoded)."""
+
+
+def payload_bytes(payload: Payload) -> bytes:
+    """``payload``'s bytes, made now if they are made on demand."""
+    return payload if isinstance(payload, bytes) else payload()
 
 
 def schema_kind(schema_name: str) -> str:
@@ -83,7 +89,7 @@ class Latch:
             return  # nothing said on it yet: its first message will come as any other
         payload, log_ns = kept
         try:
-            self._send(topic, payload(), log_ns)
+            self._send(topic, payload_bytes(payload), log_ns)
             self.sent += 1
         except Exception:  # a latched message lost must not end the thread
             log.exception("live view: could not send %s's last message again", topic)
