@@ -25,7 +25,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -35,6 +34,7 @@ import psutil
 from benchmarks.foxglove_client import FoxgloveClient
 from benchmarks.live_floor import FloorServing
 from benchmarks.mission import _clock_span, _row, skipped_row
+from benchmarks.process_tree import ProcessTreeSampler
 from services.config import read_table, write_deployment
 from services.ground.launch.launcher import free_port
 from services.ground.monitoring.scene import TRANSFORMS_TOPIC
@@ -86,38 +86,29 @@ MONITOR = "services.ground.monitoring.monitor"
 """The module the monitor runs as: the process that serves the live view."""
 
 
-class ProcessCpu:
+class ProcessCpu(ProcessTreeSampler):
     """The CPU seconds (user and system) of each process of a tree, by the module it runs
     (``python -m MODULE``), read every ``period`` s while it runs: a process's last read
     counts, so each misses at most its last ``period`` s."""
 
     def __init__(self, pid: int, period: float = 0.2) -> None:
-        self.root = psutil.Process(pid)
         self._latest: dict[int, tuple[str, float]] = {}  # pid -> (module, CPU s)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._poll, args=(period,), daemon=True)
-        self._thread.start()
+        super().__init__(pid, period)
 
     @staticmethod
     def _module(p: psutil.Process) -> str:
         args = p.cmdline()
         return args[args.index("-m") + 1] if "-m" in args[:-1] else " ".join(args[:2])
 
-    def _poll(self, period: float) -> None:
-        while True:
-            with contextlib.suppress(psutil.Error):
-                for p in [self.root, *self.root.children(recursive=True)]:
-                    # it may just have exited
-                    with contextlib.suppress(psutil.Error), p.oneshot():
-                        times = p.cpu_times()
-                        self._latest[p.pid] = (self._module(p), times.user + times.system)
-            if self._stop.wait(period):
-                return
+    def read(self, processes: list[psutil.Process]) -> None:
+        for p in processes:
+            with contextlib.suppress(psutil.Error), p.oneshot():  # it may just have exited
+                times = p.cpu_times()
+                self._latest[p.pid] = (self._module(p), times.user + times.system)
 
     def stop(self) -> dict[str, float]:
         """Stop reading; CPU seconds by module."""
-        self._stop.set()
-        self._thread.join()
+        self._end()
         out: dict[str, float] = {}
         for module, cpu in self._latest.values():
             out[module] = out.get(module, 0.0) + cpu

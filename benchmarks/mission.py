@@ -35,7 +35,6 @@ import resource
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -44,6 +43,7 @@ import psutil
 from mcap.reader import make_reader
 
 from benchmarks.floor import run_floor
+from benchmarks.process_tree import ProcessTreeSampler
 from services.config import Deployment, load_deployment, read_table, write_deployment
 from services.flight.inprocess import run_in_process
 from services.ground.storage.recording import RECORDING
@@ -51,34 +51,22 @@ from services.interface.topics import CLOCK
 from services.model import duration
 
 
-class _PeakMemory:
+class _PeakMemory(ProcessTreeSampler):
     """Peak of the summed proportional set size (PSS) of a process and all its descendants."""
 
     def __init__(self, pid: int, period: float = 1.0) -> None:
-        self.root = psutil.Process(pid)
         self.peak = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._poll, args=(period,), daemon=True)
-        self._thread.start()
+        super().__init__(pid, period)
 
-    def _poll(self, period: float) -> None:
-        # the first reads come sooner (0.1, 0.2, 0.4... s): a run of a second is read too
-        wait = min(0.1, period)
-        while not self._stop.wait(wait):
-            wait = min(2 * wait, period)
-            total = 0
-            try:
-                procs = [self.root, *self.root.children(recursive=True)]
-            except psutil.Error:
-                continue
-            for p in procs:
-                with contextlib.suppress(psutil.Error):  # it may just have exited
-                    total += p.memory_full_info().pss
-            self.peak = max(self.peak, total)
+    def read(self, processes: list[psutil.Process]) -> None:
+        total = 0
+        for p in processes:
+            with contextlib.suppress(psutil.Error):  # it may just have exited
+                total += p.memory_full_info().pss
+        self.peak = max(self.peak, total)
 
     def stop(self) -> int:
-        self._stop.set()
-        self._thread.join()
+        self._end()
         return self.peak
 
 
