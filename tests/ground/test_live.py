@@ -231,6 +231,25 @@ def test_the_server_sends_the_recordings_json_at_simulation_time(
         client.close()
 
 
+def test_a_recorded_message_is_served_as_the_recording_wrote_it(
+    server: tuple[LiveServer, str],
+) -> None:
+    """The monitor hands over the JSON it recorded: those bytes go out, not a new encoding."""
+    live, url = server
+    client = FoxgloveClient(url, timeout=10)
+    try:
+        assert wait_until(lambda: live.subscribed("nav/lqr/state"))
+        recorded = b'{"schema":"nav","t":12.5,"as":"recorded"}'
+        live.message("nav/lqr/state", nav(12.5, seq=3), recorded)
+        live.message("nav/lqr/state", nav(13.0, seq=4))  # not recorded: encoded here
+        assert wait_until(lambda: client.counts.get("nav/lqr/state") == 2)
+        first, second = (m for m in client.messages if m.topic == "nav/lqr/state")
+        assert first.payload == recorded and first.timestamp == ns(12.5)
+        assert second.json()["seq"] == 4 and second.timestamp == ns(13.0)
+    finally:
+        client.close()
+
+
 def test_a_topic_outside_the_advertised_ones_gets_its_channel_on_its_first_message(
     server: tuple[LiveServer, str],
 ) -> None:
