@@ -65,6 +65,13 @@ def _recorded(path: Path) -> tuple[list[tuple[str, str, str, bytes, str]], list[
     return described, messages
 
 
+def _hand_over(queued: list[tuple[Any, bytes, int]]) -> None:
+    """Log each queued (channel, data, log time ns) in order, and empty the queue."""
+    for channel, data, log_time in queued:
+        channel.log(data, log_time=log_time)
+    queued.clear()
+
+
 def serve(port: int, recording: Path) -> int:
     """The serving process: advertise the recording's channels on 127.0.0.1:``port``, say
     ``ready``, wait for a client to subscribe to every channel, serve every message, and print
@@ -105,13 +112,10 @@ def serve(port: int, recording: Path) -> int:
             while due > handover:  # this message is queued after the next handover
                 if queued:
                     time.sleep(max(handover - time.monotonic(), 0.0))
-                    for channel, queued_data, queued_time in queued:
-                        channel.log(queued_data, log_time=queued_time)
-                    queued.clear()
+                    _hand_over(queued)
                 handover += HANDOFF_S
             queued.append((channels[index], data, log_time))
-        for channel, queued_data, queued_time in queued:
-            channel.log(queued_data, log_time=queued_time)
+        _hand_over(queued)
         time.sleep(DRAIN_S)
         cpu = _cpu() - cpu0
     finally:
