@@ -104,7 +104,11 @@ class ProcessCpu(ProcessTreeSampler):
         for p in processes:
             with contextlib.suppress(psutil.Error), p.oneshot():  # it may just have exited
                 times = p.cpu_times()
-                self._latest[p.pid] = (self._module(p), times.user + times.system)
+                # an exited process not yet waited for reads an empty command line: it keeps
+                # the module it was last seen running
+                known = self._latest.get(p.pid)
+                module = self._module(p) or (known[0] if known else "")
+                self._latest[p.pid] = (module, times.user + times.system)
 
     def stop(self) -> dict[str, float]:
         """Stop reading; CPU seconds by module."""
