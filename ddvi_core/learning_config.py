@@ -71,6 +71,13 @@ class LearningConfig:
     its fallback; fallback: what that is, 'last' (the gains it validated last: after a
     re-learning that failed, those of before the detection; before any, the nominal model's
     LQR gains) or 'lqr' (the nominal model's LQR gains, always);
+    saturated_fraction: a first attempt that fails on data whose input was out of reach (the
+    attitude at its limit) in at least this fraction of the steps ends the exploration at once
+    and flies the fallback: such data hold no variation of the input to learn from;
+    resume_window_orbits: after such a fallback, once its command has been off the limit for an
+    orbit, explore on the fallback's gains and learn from this many orbits of data, retrying
+    every retry_orbits for as long again; only where twice this is left before the mission's
+    end (0: never);
     window_orbits: learn from the last this many orbits of data (0: all
     of it); along_track_reference: the data's reference state about its mean along-track
     position; relearn: after learning, watch the plant for a change (an actuator fault) and
@@ -141,6 +148,8 @@ class LearningConfig:
     retry_orbits: float = 1.0
     learn_until_orbits: float = 0.0
     fallback: str = "last"
+    saturated_fraction: float = 0.9
+    resume_window_orbits: float = 3.0
     window_orbits: float = 0.0
     along_track_reference: bool = True
     relearn: bool = False
@@ -275,6 +284,8 @@ FLIGHT_SCHEDULE_KEYS = (
     "retry_orbits",
     "learn_until_orbits",
     "fallback",
+    "saturated_fraction",
+    "resume_window_orbits",
     "window_orbits",
     "along_track_reference",
     "relearn",

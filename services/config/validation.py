@@ -172,6 +172,17 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
             f"got {until}"
         )
     _one_of(f"{where}.fallback", lrn.fallback, LEARNING_FALLBACKS)
+    if not (math.isfinite(lrn.saturated_fraction) and 0 < lrn.saturated_fraction <= 1):
+        raise DeploymentError(
+            f"{where}.saturated_fraction: must lie in (0, 1] (the fraction of the steps an "
+            f"attempt learned from with the attitude at its limit, from which a failed attempt "
+            f"flies the fallback at once), got {lrn.saturated_fraction}"
+        )
+    if not (math.isfinite(lrn.resume_window_orbits) and lrn.resume_window_orbits >= 0):
+        raise DeploymentError(
+            f"{where}.resume_window_orbits: must be >= 0 (0 = never learn on the fallback), "
+            f"got {lrn.resume_window_orbits}"
+        )
     if not (math.isfinite(lrn.window_orbits) and lrn.window_orbits >= 0):
         raise DeploymentError(f"{where}.window_orbits: must be >= 0 (0 = all data)")
     for key in ("relearn_window_orbits", "detector_bound", "detector_window_orbits"):

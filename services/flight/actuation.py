@@ -18,7 +18,8 @@ from services.interface import command_topic
 class Actuation:
     """The commands of deputy ``sc``: ``u``, the attitude command in force (sigma3);
     ``u_applied``, the linear-model input it realises; ``steps``, (T, u_applied) of every
-    flight-software step so far."""
+    flight-software step so far, and ``at_limit``, whether each step's input was out of reach
+    (the attitude at its limit)."""
 
     def __init__(self, dep: Deployment, sc: str) -> None:
         self.fsw = dep.run.fsw_period
@@ -32,6 +33,7 @@ class Actuation:
         self.u = 0.0
         self.u_applied = 0.0
         self.steps: list[tuple[float, float]] = []
+        self.at_limit: list[bool] = []
 
     def density_ratio(self, altitude: float) -> float:
         """rho(h) / rho(h_0) of the nominal exponential atmosphere: how much more drag the
@@ -49,7 +51,17 @@ class Actuation:
         self.u, u_area = drag_allocation(u / ratio, self.normal_angle, self.limit)
         self.u_applied = u_area * ratio
         self.steps.append((t, self.u_applied))
+        # the allocation's own rounding moves an input within reach by about 1e-17
+        self.at_limit.append(abs(u_area - u / ratio) > 1e-9)
         return self.u
+
+    def fraction_at_limit(self, start: float, end: float) -> float:
+        """The fraction of the flight-software steps from ``start`` to ``end`` (s, both
+        included) whose input was out of reach: the attitude held at its limit, the drag not
+        following the input (0 if no step)."""
+        lo = bisect.bisect_left(self.steps, start - 1e-6, key=lambda step: step[0])
+        hi = bisect.bisect_right(self.steps, end + 1e-6, key=lambda step: step[0])
+        return sum(self.at_limit[lo:hi]) / (hi - lo) if hi > lo else 0.0
 
     def input_at(self, t: float) -> float:
         """The linear-model input this controller had in force at time t: that of its newest

@@ -96,6 +96,7 @@ class Controller:
             self.watch,
             self.actuation,
             lqr,
+            dep.run.orbits * self.orbit,
         )
 
     @property
@@ -202,6 +203,8 @@ class Controller:
         elif learned and self.learner is not None and self.learner.station is not None:
             L, learn_log = self.learner.station.step(t, self.L, self.learning.learning_window(t))
             self.phases.trim(L)
+        elif self.phases.current is Phase.FALLBACK:
+            learn_log = self.learning.resume_on_fallback(t)
         self.command(t, x, v, altitude)
         return learn_log
 

@@ -89,15 +89,17 @@ class Learner:
             return f"sample at t = {t} rejected: {exc}"
         return None
 
-    def attempt(self, since: float, exosystem: tuple, due: float) -> Attempt:
+    def attempt(
+        self, since: float, exosystem: tuple, due: float, on_fallback: bool = False
+    ) -> Attempt:
         """Learn from the data at or after ``since`` with ``exosystem`` (C, E, F), for the
-        attempt scheduled at ``due``."""
+        attempt scheduled at ``due``, exploring on the fallback or not (``on_fallback``)."""
         try:
-            return self.learn(self.store.data().since(since), exosystem, due)
+            return self.learn(self.store.data().since(since), exosystem, due, on_fallback)
         except LearningError as exc:
             return Attempt(None, {}, f"failed: {exc}", None)
 
-    def learn(self, data: Any, exosystem: tuple, due: float) -> Attempt:
+    def learn(self, data: Any, exosystem: tuple, due: float, on_fallback: bool) -> Attempt:
         """The method's attempt on ``data``; raises LearningError when it gives no gains."""
         raise NotImplementedError
 
@@ -117,7 +119,7 @@ class ValueIterationLearner(Learner):
     def new_store(self, q: int) -> IntervalCollector:
         return IntervalCollector(4, 1, q, self.lrn.interval, max_gap=3 * self.nav_period)
 
-    def learn(self, data: Any, exosystem: tuple, due: float) -> Attempt:
+    def learn(self, data: Any, exosystem: tuple, due: float, on_fallback: bool) -> Attempt:
         lrn, pr, n = self.lrn, self.problem, self.n_rate
         C, E, F = exosystem
         r = learn_from_data(
@@ -164,12 +166,14 @@ class ModelFitLearner(Learner):
             max_samples=math.ceil(window / nav) + 2,
         )
 
-    def learn(self, data: Any, exosystem: tuple, due: float) -> Attempt:
+    def learn(self, data: Any, exosystem: tuple, due: float, on_fallback: bool) -> Attempt:
         """With the tolerance in force for the attempt due at ``due``: ``fit_tolerance``, or
-        from ``fit_deadline_orbits`` on ``fit_deadline_tolerance``."""
+        from ``fit_deadline_orbits`` on, and on the fallback, ``fit_deadline_tolerance``: a
+        deputy on its fallback is past the time to learn, and its fallback holds the nominal
+        model's gains, not the learner's."""
         lrn = self.lrn
         deadline = lrn.fit_deadline_orbits * self.orbit
-        late = lrn.fit_deadline_orbits > 0 and due >= deadline - 1e-6
+        late = on_fallback or (lrn.fit_deadline_orbits > 0 and due >= deadline - 1e-6)
         tolerance = lrn.fit_deadline_tolerance if late else lrn.fit_tolerance
         holdout = lrn.validation_orbits * self.orbit
         r, info, why = fit_attempt(

@@ -37,6 +37,7 @@ class LearningCycle:
     watch : the change detector's watch.
     actuation : the commands (their link delay: when a restarted learner's data start).
     lqr : the nominal model's LQR gains, K (1, n) and L (1, 5) (source "lqr"): the fallback.
+    end : when the mission ends, s (whether a fallback has time left to learn on).
     """
 
     def __init__(
@@ -50,10 +51,11 @@ class LearningCycle:
         watch: ChangeWatch,
         actuation: Actuation,
         lqr: Gains,
+        end: float,
     ) -> None:
         self.deputy, self.orbit, self.fsw = deputy, orbit, fsw
         self.learner, self.phases, self.exostate = learner, phases, exostate
-        self.watch, self.actuation, self.lqr = watch, actuation, lqr
+        self.watch, self.actuation, self.lqr, self.end = watch, actuation, lqr, end
         self.iteration = 0
         self.learn_info: dict = {}
         self.rank = self.rank_needed = 0
@@ -62,6 +64,9 @@ class LearningCycle:
         self.learned_at: list[float] = []  # every switch to learned gains (s)
         self.abandoned_at: list[float] = []  # every return to the old gains (s)
         self.fallback_at: list[float] = []  # when it took to the LQR fallback (s)
+        self.saturated_fallback = False  # the fallback was taken on saturated data
+        self.resumed_at: list[float] = []  # when it explored on the fallback (s)
+        self.resume_until = math.inf  # the last attempt on the fallback (s)
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -128,7 +133,12 @@ class LearningCycle:
         t0 = time.perf_counter()
         self.learn_attempts += 1
         since = self.learning_window(t)
-        attempt = learner.attempt(since, self.exostate.exosystem, self.phases.schedule.next_attempt)
+        attempt = learner.attempt(
+            since,
+            self.exostate.exosystem,
+            self.phases.schedule.next_attempt,
+            self.phases.current is Phase.EXPLORING_ON_FALLBACK,
+        )
         if attempt.rank is not None:
             self.rank, self.rank_needed = attempt.rank
         if attempt.refused is not None:
@@ -179,11 +189,57 @@ class LearningCycle:
                     "fault detector off"
                 )
         retry = t + lrn.retry_orbits * self.orbit
-        until = lrn.learn_until_orbits
-        if before is None and retry > until * self.orbit + 1e-6:
-            return self.fall_back(t, f"{why}; no gain validated by orbit {until:g}")
+        if self.phases.current is Phase.EXPLORING_ON_FALLBACK:
+            if retry > self.resume_until + 1e-6:
+                return self.fall_back(t, f"{why}; no gain validated on the fallback")
+            self.phases.reschedule(next_attempt=retry)
+            return f"{why}, exploring on the fallback"
+        if before is None:
+            start = max(self.learning_window(t), self.phases.schedule.collect_from)
+            saturated = self.actuation.fraction_at_limit(start, t)
+            if saturated >= lrn.saturated_fraction:
+                self.saturated_fallback = True
+                return self.fall_back(
+                    t,
+                    f"{why}; the attitude was at its limit in {saturated:.0%} of the steps it "
+                    "learned from: no variation of the input to learn from, and exploring on K0 "
+                    "loses ground on the approach",
+                )
+            until = lrn.learn_until_orbits
+            if retry > until * self.orbit + 1e-6:
+                return self.fall_back(t, f"{why}; no gain validated by orbit {until:g}")
         self.phases.reschedule(next_attempt=retry)
         return f"{why}, exploring on"
+
+    def resume_on_fallback(self, t: float) -> str | None:
+        """At step t on a fallback taken on saturated data: once its command has been off the
+        attitude limit for an orbit (on station, where the data can vary) and twice
+        ``resume_window_orbits`` are left before the mission's end, explore on the fallback's
+        gains, the data from when this step's command acts, and learn ``resume_window_orbits``
+        later, retrying as after a failed attempt while a gain would still fly that long before
+        the end.  Once only.  Returns the log line, or None if it does not resume."""
+        lrn = self.deputy.learning
+        window = lrn.resume_window_orbits * self.orbit
+        if (
+            not self.saturated_fallback
+            or self.resumed_at
+            or window <= 0
+            or t - self.fallback_at[-1] < self.orbit - 1e-6
+            or t + 2 * window > self.end + 1e-6
+            or self.actuation.fraction_at_limit(t - self.orbit, t) > 0
+        ):
+            return None
+        collect_from = math.ceil((t + self.actuation.delay) / self.fsw - 1e-9) * self.fsw
+        schedule = Schedule(collect_from, t + window)
+        self.phases.move(Phase.EXPLORING_ON_FALLBACK, self.phases.gains, schedule)
+        self.learner.store = self.learner.new_store(self.exostate.exosystem[1].shape[0])
+        self.resumed_at.append(t)
+        self.resume_until = self.end - window
+        return (
+            f"the fallback's attitude has been off its limit for an orbit: exploring on the "
+            f"fallback from t = {t:.0f} s, data from t = {collect_from:.0f} s, learning at "
+            f"t = {schedule.next_attempt:.0f} s"
+        )
 
     def fall_back(self, t: float, why: str) -> str:
         """Fly the fallback from step t to the end: the nominal model's LQR gains (the

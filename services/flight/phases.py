@@ -5,9 +5,12 @@ exploration, collecting for its learner), is ``learned`` once a gain is taken, a
 ``learning.relearn`` goes ``relearning`` (K0 and the exploration again) when its change
 detector sees the plant change; from there it is ``learned`` again, on the new gains or, when
 re-learning fails too often, on the gains of before the detection.  Where no gain validates
-(no first gain by ``learning.learn_until_orbits``; re-learning failed with ``learning.fallback
-= "lqr"``) it flies its ``fallback``, the nominal model's LQR gains, to the end: never K0's
-exploration, which holds no slot.  The phase in force holds
+(no first gain by ``learning.learn_until_orbits``, or a first attempt on data whose input was
+at the attitude limit; re-learning failed with ``learning.fallback = "lqr"``) it flies its
+``fallback``, the nominal model's LQR gains: never K0's exploration, which holds no slot.  A
+fallback taken on saturated data goes ``exploring-on-fallback`` (the fallback's gains and the
+exploration) once its command leaves the limit with time left to learn, and from there is
+``learned`` or back on the ``fallback`` to the end.  The phase in force holds
 what it flies and when it learns: its gains (``Gains``: K, L and their source), an exploring
 phase its ``Schedule`` (data from when, the next attempt when), re-learning what flew before
 the detection (``Relearning``); so that no move changes one without the others.
@@ -37,14 +40,26 @@ class Phase(StrEnum):
     LEARNED = "learned"
     RELEARNING = "relearning"
     FALLBACK = "fallback"
+    EXPLORING_ON_FALLBACK = "exploring-on-fallback"
 
 
 TRANSITIONS: dict[tuple[Phase, Phase], str] = {
     (Phase.EXPLORING, Phase.LEARNED): "a learning attempt gave gains",
-    (Phase.EXPLORING, Phase.FALLBACK): "no gain validated by learning.learn_until_orbits",
+    (Phase.EXPLORING, Phase.FALLBACK): (
+        "no gain validated by learning.learn_until_orbits, or an attempt failed on data whose "
+        "input was at the attitude limit (learning.saturated_fraction)"
+    ),
     (Phase.LEARNED, Phase.RELEARNING): "the change detector saw the plant change",
     (Phase.RELEARNING, Phase.LEARNED): "re-learning gave gains, or was abandoned",
     (Phase.RELEARNING, Phase.FALLBACK): 're-learning was abandoned with learning.fallback = "lqr"',
+    (Phase.FALLBACK, Phase.EXPLORING_ON_FALLBACK): (
+        "the fallback, taken on saturated data, has held its command off the attitude limit "
+        "for an orbit, with twice learning.resume_window_orbits left"
+    ),
+    (Phase.EXPLORING_ON_FALLBACK, Phase.LEARNED): "a learning attempt on the fallback gave gains",
+    (Phase.EXPLORING_ON_FALLBACK, Phase.FALLBACK): (
+        "no gain validated within twice learning.resume_window_orbits of exploring on the fallback"
+    ),
 }
 """Every move a controller may make, with what makes it; the LQR never moves."""
 
@@ -54,14 +69,15 @@ SOURCES: dict[Phase, str] = {
     Phase.EXPLORING: "initial",
     Phase.RELEARNING: "initial",
     Phase.FALLBACK: "lqr",
+    Phase.EXPLORING_ON_FALLBACK: "lqr",
 }
 """The source of the gains each phase but ``learned`` flies; ``learned`` flies any other (a
 learner's name, or "fallback")."""
 
 
-EXPLORING_PHASES = (Phase.EXPLORING, Phase.RELEARNING)
-"""The phases that fly K0 with the exploration and collect for the learner: they have a
-``Schedule``."""
+EXPLORING_PHASES = (Phase.EXPLORING, Phase.RELEARNING, Phase.EXPLORING_ON_FALLBACK)
+"""The phases that fly the exploration on K0 (on the fallback's gains: exploring-on-fallback)
+and collect for the learner: they have a ``Schedule``."""
 
 
 class PhaseTransitionError(RuntimeError):
@@ -155,6 +171,7 @@ class PhaseMachine:
 
     @property
     def exploring(self) -> bool:
-        """Flying K0 with the exploration and collecting for the learner: before the first
-        learning or, after a detected change, before re-learning."""
+        """Flying the exploration and collecting for the learner: on K0 before the first
+        learning or, after a detected change, before re-learning; on the fallback's gains once
+        a fallback taken on saturated data is off the limit."""
         return self.current in EXPLORING_PHASES

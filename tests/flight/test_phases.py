@@ -9,13 +9,26 @@ import pytest
 
 from services.config import load_deployment
 from services.flight.control import Controller
-from services.flight.phases import Gains, Phase, PhaseMachine, PhaseTransitionError, Schedule
+from services.flight.phases import (
+    EXPLORING_PHASES,
+    Gains,
+    Phase,
+    PhaseMachine,
+    PhaseTransitionError,
+    Schedule,
+)
 from services.flight.relearning import Relearning
 
 K0 = Gains(np.zeros((1, 4)), np.zeros((1, 2)), "initial")
 LEARNED = Gains(np.ones((1, 4)), np.ones((1, 2)), "ddvi")
 LQR = Gains(K0.K, K0.L, "lqr")
-FLOWN = {Phase.LQR: LQR, Phase.EXPLORING: K0, Phase.RELEARNING: K0, Phase.FALLBACK: LQR}
+FLOWN = {
+    Phase.LQR: LQR,
+    Phase.EXPLORING: K0,
+    Phase.RELEARNING: K0,
+    Phase.FALLBACK: LQR,
+    Phase.EXPLORING_ON_FALLBACK: LQR,
+}
 SCHEDULE = Schedule(collect_from=0.0, next_attempt=1000.0)
 BEFORE = Relearning(LEARNED.K, LEARNED.L, (), 500.0, None, (20, 20), 600.0, 400.0)
 
@@ -23,7 +36,7 @@ BEFORE = Relearning(LEARNED.K, LEARNED.L, (), 500.0, None, (20, 20), 600.0, 400.
 def _args(phase: Phase) -> tuple:
     """What entering ``phase`` takes: its gains, an exploring phase's schedule, and what
     re-learning keeps of before."""
-    schedule = SCHEDULE if phase in (Phase.EXPLORING, Phase.RELEARNING) else None
+    schedule = SCHEDULE if phase in EXPLORING_PHASES else None
     before = BEFORE if phase is Phase.RELEARNING else None
     return FLOWN.get(phase, LEARNED), schedule, before
 
@@ -50,16 +63,31 @@ def test_a_learner_explores_learns_relearns_and_learns_again() -> None:
 
 
 @pytest.mark.parametrize("start", [Phase.EXPLORING, Phase.RELEARNING])
-def test_a_learner_with_no_gain_validated_falls_back_to_the_lqr_gains_for_good(
+def test_a_learner_with_no_gain_validated_falls_back_to_the_lqr_gains_and_explores_only_on_them(
     start: Phase,
 ) -> None:
     phases = _machine(start)
     phases.move(Phase.FALLBACK, LQR)
     assert phases.current is Phase.FALLBACK and phases.gains is LQR
     assert phases.converged and not phases.exploring and phases.schedule is None
-    for to in Phase:  # no move out: only a restart explores again
-        with pytest.raises(PhaseTransitionError, match="from fallback it may move to: none"):
+    for to in set(Phase) - {Phase.EXPLORING_ON_FALLBACK}:  # K0 again only after a restart
+        with pytest.raises(
+            PhaseTransitionError, match="from fallback it may move to: exploring-on-fallback"
+        ):
             phases.move(to, *_args(to))
+
+
+@pytest.mark.parametrize("outcome", [Phase.LEARNED, Phase.FALLBACK])
+def test_a_fallback_explores_on_its_own_gains_and_learns_or_falls_back_again(
+    outcome: Phase,
+) -> None:
+    phases = _machine(Phase.FALLBACK)
+    phases.move(Phase.EXPLORING_ON_FALLBACK, LQR, SCHEDULE)
+    assert phases.exploring and not phases.converged
+    assert phases.gains is LQR and phases.schedule is SCHEDULE and phases.before is None
+    phases.move(outcome, *_args(outcome))
+    assert phases.current is outcome and phases.gains is FLOWN.get(outcome, LEARNED)
+    assert phases.converged and phases.schedule is None
 
 
 def test_an_exploring_phase_has_a_schedule_and_only_re_learning_keeps_what_flew_before() -> None:
@@ -89,6 +117,10 @@ def test_an_exploring_phase_has_a_schedule_and_only_re_learning_keeps_what_flew_
         (Phase.FALLBACK, Phase.EXPLORING),
         (Phase.FALLBACK, Phase.LEARNED),
         (Phase.LEARNED, Phase.FALLBACK),
+        (Phase.EXPLORING, Phase.EXPLORING_ON_FALLBACK),
+        (Phase.LEARNED, Phase.EXPLORING_ON_FALLBACK),
+        (Phase.EXPLORING_ON_FALLBACK, Phase.EXPLORING),
+        (Phase.EXPLORING_ON_FALLBACK, Phase.RELEARNING),
     ],
 )
 def test_an_illegal_move_raises_and_leaves_the_phase(start: Phase, to: Phase) -> None:
@@ -106,6 +138,7 @@ def test_an_illegal_move_raises_and_leaves_the_phase(start: Phase, to: Phase) ->
         (Phase.LEARNED, "initial"),
         (Phase.FALLBACK, "ddvi"),
         (Phase.FALLBACK, "initial"),
+        (Phase.EXPLORING_ON_FALLBACK, "initial"),
     ],
 )
 def test_a_phase_flies_only_gains_of_its_own_source(phase: Phase, source: str) -> None:
