@@ -22,7 +22,9 @@ after ``relearn_settle_orbits``, with the density ratio added to its exostate
 detector; after ``relearn_max_attempts`` failed attempts it flies the gains of before the
 detection again (source "fallback"; with ``learning.fallback = "lqr"`` the nominal model's
 LQR gains, phase "fallback") and watches no more until it is restarted.  A learner that has
-validated no gain by ``learn_until_orbits`` flies the LQR gains too (phase "fallback").  Every
+validated no gain by ``learn_until_orbits`` flies the LQR gains too (phase "fallback"), and so
+does one whose first attempt fails on data with the attitude at its limit, which explores and
+learns on those gains once their command is off the limit (phase "exploring-on-fallback").  Every
 command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
 nav message), which makes the facet's drag linear in u and the same at every altitude.  The
 learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
@@ -101,7 +103,8 @@ class Controller:
 
     @property
     def phase(self) -> str:
-        """The phase's word: "lqr", "exploring", "learned", "relearning" or "fallback"."""
+        """The phase's word: "lqr", "exploring", "learned", "relearning", "fallback" or
+        "exploring-on-fallback"."""
         return self.phases.current.value
 
     @property

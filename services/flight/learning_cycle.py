@@ -170,7 +170,11 @@ class LearningCycle:
         attempts).  So is it where no first gain validates: past ``learn_until_orbits`` (far
         from where it started the linear model no longer holds the data: a deputy that cannot
         hold its slot drifts 100 km and more, so a late fit is not trusted) it flies the
-        fallback.  Returns the log line."""
+        fallback; and at once where a first attempt fails on data whose input was out of reach
+        in ``saturated_fraction`` of the steps (K0's command at the attitude limit: no
+        variation of the input to learn from, and K0 loses ground on the approach).  An attempt
+        exploring on the fallback retries until ``resume_until``, then flies the fallback
+        again.  Returns the log line."""
         lrn, before = self.deputy.learning, self.phases.before
         if before is not None:
             before.failures += 1
@@ -233,6 +237,7 @@ class LearningCycle:
         schedule = Schedule(collect_from, t + window)
         self.phases.move(Phase.EXPLORING_ON_FALLBACK, self.phases.gains, schedule)
         self.learner.store = self.learner.new_store(self.exostate.exosystem[1].shape[0])
+        self.watch.disarm()  # nor does the detector's predictor fit K0's samples
         self.resumed_at.append(t)
         self.resume_until = self.end - window
         return (
@@ -242,7 +247,8 @@ class LearningCycle:
         )
 
     def fall_back(self, t: float, why: str) -> str:
-        """Fly the fallback from step t to the end: the nominal model's LQR gains (the
+        """Fly the fallback from step t, to the end unless it explores on it
+        (``resume_on_fallback``): the nominal model's LQR gains (the
         feedforward zero on an exostate mode the model has not: the density ratio).  Returns
         the log line, which says why (``why``)."""
         q = self.exostate.exosystem[1].shape[0]

@@ -189,7 +189,9 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
         {
             "sc": _DEPUTY,
             "mode": Str(doc="the controller's mode: lqr or ddvi"),
-            "phase": Str(doc="lqr, exploring, learned, relearning or fallback"),
+            "phase": Str(
+                doc="lqr, exploring, learned, relearning, fallback or exploring-on-fallback"
+            ),
             "samples": Int(unit="count", doc="navigation samples the learner has collected"),
             "intervals": Int(unit="count", doc="learning intervals the learner has collected"),
             "rank": Int(unit="count", doc="rank of the learner's data matrix at its last try"),
