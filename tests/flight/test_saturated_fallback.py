@@ -96,6 +96,7 @@ def test_the_fallback_explores_on_its_own_gains_once_off_the_limit_for_an_orbit(
     assert ctrl.learning.resume_on_fallback(t) is None
     ctrl.actuation.at_limit[-10] = False
     explored = ctrl.learner.store
+    ctrl.watch.record(60.0, np.zeros(4), 0.2, np.zeros(ctrl.exosystem[1].shape[0]))  # K0's
     log = ctrl.learning.resume_on_fallback(t)
     assert log is not None and "exploring on the fallback" in log
     assert ctrl.phase == "exploring-on-fallback" and ctrl.exploring
@@ -103,6 +104,7 @@ def test_the_fallback_explores_on_its_own_gains_once_off_the_limit_for_an_orbit(
     assert ctrl.phases.schedule.next_attempt == pytest.approx(t + 3.0 * orbit)
     assert ctrl.learning.resume_until == pytest.approx(40.0 * orbit - 3.0 * orbit)
     assert ctrl.learner.store is not explored  # the data from K0's exploration are not kept
+    assert not ctrl.watch.samples  # nor are its samples, for the change detector
     assert ctrl.learning.resumed_at == [t]
 
 
