@@ -68,16 +68,20 @@ class LearningConfig:
     when to learn and switch gains; retry_orbits: after a failed attempt, explore on and try
     again this much later; learn_until_orbits: no attempt after this orbit (0: no limit; a
     deputy's follows from the mission), and a learner that has validated no gain by then flies
-    its fallback; fallback: what that is, 'last' (the gains it validated last: after a
+    its fallback (one taken on saturated data may learn on it later: resume_window_orbits);
+    fallback: what that is, 'last' (the gains it validated last: after a
     re-learning that failed, those of before the detection; before any, the nominal model's
     LQR gains) or 'lqr' (the nominal model's LQR gains, always);
-    saturated_fraction: a first attempt that fails on data whose input was out of reach (the
-    attitude at its limit) in at least this fraction of the steps ends the exploration at once
-    and flies the fallback: such data hold no variation of the input to learn from;
+    saturated_fraction: an attempt at the first gain that fails on data whose input was out of
+    reach (the attitude at its limit) in at least this fraction of the steps ends the
+    exploration at once and flies the fallback: such data hold no variation of the input to
+    learn from;
     resume_window_orbits: after such a fallback, once its command has been off the limit for an
     orbit, explore on the fallback's gains and learn from this many orbits of data, retrying
-    every retry_orbits for as long again; only where twice this is left before the mission's
-    end (0: never);
+    every retry_orbits while a gain would still fly this long before the mission's end; only
+    where twice this is left (0: never);
+    resume_fit_tolerance: model-fit: the tolerance on the predicted relative gain error of an
+    attempt on the fallback (fit_tolerance's, past the time to learn);
     window_orbits: learn from the last this many orbits of data (0: all
     of it); along_track_reference: the data's reference state about its mean along-track
     position; relearn: after learning, watch the plant for a change (an actuator fault) and
@@ -150,6 +154,7 @@ class LearningConfig:
     fallback: str = "last"
     saturated_fraction: float = 0.9
     resume_window_orbits: float = 3.0
+    resume_fit_tolerance: float = 0.5
     window_orbits: float = 0.0
     along_track_reference: bool = True
     relearn: bool = False
@@ -286,6 +291,7 @@ FLIGHT_SCHEDULE_KEYS = (
     "fallback",
     "saturated_fraction",
     "resume_window_orbits",
+    "resume_fit_tolerance",
     "window_orbits",
     "along_track_reference",
     "relearn",

@@ -178,6 +178,7 @@ def _check_deputy_learning(w: str, d: Deputy) -> None:
             f"attempt learned from with the attitude at its limit, from which a failed attempt "
             f"flies the fallback at once), got {lrn.saturated_fraction}"
         )
+    _positive(f"{where}.resume_fit_tolerance", lrn.resume_fit_tolerance)
     if not (math.isfinite(lrn.resume_window_orbits) and lrn.resume_window_orbits >= 0):
         raise DeploymentError(
             f"{where}.resume_window_orbits: must be >= 0 (0 = never learn on the fallback), "

@@ -58,10 +58,16 @@ class Actuation:
     def fraction_at_limit(self, start: float, end: float) -> float:
         """The fraction of the flight-software steps from ``start`` to ``end`` (s, both
         included) whose input was out of reach: the attitude held at its limit, the drag not
-        following the input (0 if no step)."""
+        following the input (0 if no step).  Only the steps the control law flew count: a step
+        in the safe attitude (stale navigation) computes no input."""
         lo = bisect.bisect_left(self.steps, start - 1e-6, key=lambda step: step[0])
         hi = bisect.bisect_right(self.steps, end + 1e-6, key=lambda step: step[0])
         return sum(self.at_limit[lo:hi]) / (hi - lo) if hi > lo else 0.0
+
+    def first_acting_step(self, t: float) -> float:
+        """The first flight-software step (s) at which a command issued at t acts on the plant:
+        the data of a learner that starts at t begin there."""
+        return math.ceil((t + self.delay) / self.fsw - 1e-9) * self.fsw
 
     def input_at(self, t: float) -> float:
         """The linear-model input this controller had in force at time t: that of its newest

@@ -23,8 +23,9 @@ detector; after ``relearn_max_attempts`` failed attempts it flies the gains of b
 detection again (source "fallback"; with ``learning.fallback = "lqr"`` the nominal model's
 LQR gains, phase "fallback") and watches no more until it is restarted.  A learner that has
 validated no gain by ``learn_until_orbits`` flies the LQR gains too (phase "fallback"), and so
-does one whose first attempt fails on data with the attitude at its limit, which explores and
-learns on those gains once their command is off the limit (phase "exploring-on-fallback").  Every
+does one whose attempt at a first gain fails on data with the attitude at its limit, which
+explores and learns on those gains once their command is off the limit (phase
+"exploring-on-fallback").  Every
 command goes through ddvi_core.models.drag_allocation, scheduled on the deputy's altitude (its
 nav message), which makes the facet's drag linear in u and the same at every altitude.  The
 learner gets what a flight computer knows: Q, R, the output map and reference (C, F), the
@@ -47,7 +48,14 @@ from services.flight.learners import Learner, LearnerExostate, make_learner
 from services.flight.learning_cycle import LearningCycle, initial_gains
 from services.flight.phases import Gains, Phase, PhaseMachine, Schedule
 from services.flight.relearning import ChangeWatch
-from services.model import lqr_gains, mean_motion, nominal_problem, on_grid, orbit_period
+from services.model import (
+    duration,
+    lqr_gains,
+    mean_motion,
+    nominal_problem,
+    on_grid,
+    orbit_period,
+)
 
 
 @dataclass
@@ -91,14 +99,13 @@ class Controller:
         self.learning = LearningCycle(
             self.deputy,
             self.orbit,
-            self.fsw,
             self.learner,
             self.phases,
             self.exostate,
             self.watch,
             self.actuation,
             lqr,
-            dep.run.orbits * self.orbit,
+            duration(dep),
         )
 
     @property

@@ -167,14 +167,16 @@ class ModelFitLearner(Learner):
         )
 
     def learn(self, data: Any, exosystem: tuple, due: float, on_fallback: bool) -> Attempt:
-        """With the tolerance in force for the attempt due at ``due``: ``fit_tolerance``, or
-        from ``fit_deadline_orbits`` on, and on the fallback, ``fit_deadline_tolerance``: a
-        deputy on its fallback is past the time to learn, and its fallback holds the nominal
-        model's gains, not the learner's."""
+        """With the tolerance in force for the attempt due at ``due``: ``fit_tolerance``, from
+        ``fit_deadline_orbits`` on ``fit_deadline_tolerance``, and on the fallback
+        ``resume_fit_tolerance`` (past the time to learn, on station, the nominal model's gains
+        the alternative; the gain still passes the hold-out validation before it flies)."""
         lrn = self.lrn
         deadline = lrn.fit_deadline_orbits * self.orbit
-        late = on_fallback or (lrn.fit_deadline_orbits > 0 and due >= deadline - 1e-6)
+        late = lrn.fit_deadline_orbits > 0 and due >= deadline - 1e-6
         tolerance = lrn.fit_deadline_tolerance if late else lrn.fit_tolerance
+        if on_fallback:
+            tolerance = lrn.resume_fit_tolerance
         holdout = lrn.validation_orbits * self.orbit
         r, info, why = fit_attempt(
             data, lrn, self.problem, exosystem, self.translation, tolerance, holdout

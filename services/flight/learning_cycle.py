@@ -30,12 +30,12 @@ class LearningCycle:
     Parameters
     ----------
     deputy : the deputy (its ``learning`` table).
-    orbit, fsw : the orbit and the flight-software step, s.
+    orbit : the orbit period, s.
     learner : the deputy's learner (None for the LQR: the record stays empty).
     phases : the controller's phases, moved by the cycle.
     exostate : the learner's exostate (the density ratio added on re-learning).
     watch : the change detector's watch.
-    actuation : the commands (their link delay: when a restarted learner's data start).
+    actuation : the commands (when a learner's data start; which were at the attitude limit).
     lqr : the nominal model's LQR gains, K (1, n) and L (1, 5) (source "lqr"): the fallback.
     end : when the mission ends, s (whether a fallback has time left to learn on).
     """
@@ -44,7 +44,6 @@ class LearningCycle:
         self,
         deputy: Deputy,
         orbit: float,
-        fsw: float,
         learner: Learner | None,
         phases: PhaseMachine,
         exostate: LearnerExostate,
@@ -53,7 +52,7 @@ class LearningCycle:
         lqr: Gains,
         end: float,
     ) -> None:
-        self.deputy, self.orbit, self.fsw = deputy, orbit, fsw
+        self.deputy, self.orbit = deputy, orbit
         self.learner, self.phases, self.exostate = learner, phases, exostate
         self.watch, self.actuation, self.lqr, self.end = watch, actuation, lqr, end
         self.iteration = 0
@@ -74,9 +73,8 @@ class LearningCycle:
         own commands act, learning ``learn_at_orbits`` from now).  Returns the log line."""
         if self.learner is None:
             return f"restarted: flying the LQR gains from t = {t:.0f} s"
-        delay = self.actuation.delay
         self.phases.reschedule(
-            collect_from=math.ceil((t + delay) / self.fsw - 1e-9) * self.fsw,
+            collect_from=self.actuation.first_acting_step(t),
             next_attempt=t + self.deputy.learning.learn_at_orbits * self.orbit,
         )
         schedule = self.phases.schedule
@@ -170,11 +168,11 @@ class LearningCycle:
         attempts).  So is it where no first gain validates: past ``learn_until_orbits`` (far
         from where it started the linear model no longer holds the data: a deputy that cannot
         hold its slot drifts 100 km and more, so a late fit is not trusted) it flies the
-        fallback; and at once where a first attempt fails on data whose input was out of reach
-        in ``saturated_fraction`` of the steps (K0's command at the attitude limit: no
-        variation of the input to learn from, and K0 loses ground on the approach).  An attempt
-        exploring on the fallback retries until ``resume_until``, then flies the fallback
-        again.  Returns the log line."""
+        fallback; and at once where an attempt at the first gain fails on data whose input was
+        out of reach in ``saturated_fraction`` of the steps (K0's command at the attitude
+        limit: no variation of the input to learn from, and K0 loses ground on the approach).
+        An attempt exploring on the fallback retries until ``resume_until``, then flies the
+        fallback again.  Returns the log line."""
         lrn, before = self.deputy.learning, self.phases.before
         if before is not None:
             before.failures += 1
@@ -233,7 +231,7 @@ class LearningCycle:
             or self.actuation.fraction_at_limit(t - self.orbit, t) > 0
         ):
             return None
-        collect_from = math.ceil((t + self.actuation.delay) / self.fsw - 1e-9) * self.fsw
+        collect_from = self.actuation.first_acting_step(t)
         schedule = Schedule(collect_from, t + window)
         self.phases.move(Phase.EXPLORING_ON_FALLBACK, self.phases.gains, schedule)
         self.learner.store = self.learner.new_store(self.exostate.exosystem[1].shape[0])

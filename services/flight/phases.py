@@ -5,7 +5,7 @@ exploration, collecting for its learner), is ``learned`` once a gain is taken, a
 ``learning.relearn`` goes ``relearning`` (K0 and the exploration again) when its change
 detector sees the plant change; from there it is ``learned`` again, on the new gains or, when
 re-learning fails too often, on the gains of before the detection.  Where no gain validates
-(no first gain by ``learning.learn_until_orbits``, or a first attempt on data whose input was
+(no first gain by ``learning.learn_until_orbits``, or an attempt at it on data whose input was
 at the attitude limit; re-learning failed with ``learning.fallback = "lqr"``) it flies its
 ``fallback``, the nominal model's LQR gains: never K0's exploration, which holds no slot.  A
 fallback taken on saturated data goes ``exploring-on-fallback`` (the fallback's gains and the
@@ -46,8 +46,8 @@ class Phase(StrEnum):
 TRANSITIONS: dict[tuple[Phase, Phase], str] = {
     (Phase.EXPLORING, Phase.LEARNED): "a learning attempt gave gains",
     (Phase.EXPLORING, Phase.FALLBACK): (
-        "no gain validated by learning.learn_until_orbits, or an attempt failed on data whose "
-        "input was at the attitude limit (learning.saturated_fraction)"
+        "no gain validated by learning.learn_until_orbits, or an attempt at the first gain "
+        "failed on data whose input was at the attitude limit (learning.saturated_fraction)"
     ),
     (Phase.LEARNED, Phase.RELEARNING): "the change detector saw the plant change",
     (Phase.RELEARNING, Phase.LEARNED): "re-learning gave gains, or was abandoned",
@@ -58,7 +58,8 @@ TRANSITIONS: dict[tuple[Phase, Phase], str] = {
     ),
     (Phase.EXPLORING_ON_FALLBACK, Phase.LEARNED): "a learning attempt on the fallback gave gains",
     (Phase.EXPLORING_ON_FALLBACK, Phase.FALLBACK): (
-        "no gain validated within twice learning.resume_window_orbits of exploring on the fallback"
+        "no gain validated on the fallback while one would still fly "
+        "learning.resume_window_orbits before the end"
     ),
 }
 """Every move a controller may make, with what makes it; the LQR never moves."""

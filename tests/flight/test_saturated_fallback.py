@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 
 from services.config import DeploymentError, deployment_from_table, read_table
+from services.flight import learners
 from services.flight.actuation import Actuation
 from services.flight.control import Controller
 from services.flight.inprocess import run_in_process
-from services.model import lqr_gains
+from services.flight.phases import Gains, Phase, Schedule
+from services.flight.relearning import Relearning
+from services.model import duration, lqr_gains
 
 
 def _realistic(orbits: float, factor: float = 1.0, **learning) -> object:
@@ -68,21 +71,55 @@ def test_below_the_saturated_fraction_a_failed_attempt_explores_on() -> None:
     assert ctrl.actuation.fraction_at_limit(start, 6.0 * ctrl.orbit) < 0.9
 
 
-def _on_saturated_fallback(orbits: float = 40.0, **learning) -> tuple[Controller, float]:
-    """A model-fit controller flying the fallback it took on saturated data at orbit 6 (s),
-    its commands at the limit to then."""
+def _exploring_at_the_limit(
+    orbits: float = 40.0, off: int = 0, **learning
+) -> tuple[Controller, float]:
+    """A model-fit controller that has explored to orbit 6 (s) with every command out of reach
+    but its last ``off``, due to attempt then."""
     ctrl = Controller(_realistic(orbits, **learning), "fit")
-    for k in range(int(6 * ctrl.orbit // 60) + 1):
-        ctrl.actuation.allocate(60.0 * k, 5.0, ctrl.actuation.h_model)
-    t_fallback = 60.0 * k
-    ctrl.learning.saturated_fallback = True
-    ctrl.learning.fall_back(t_fallback, "no gain")
-    return ctrl, t_fallback
+    steps = int(6 * ctrl.orbit // 60) + 1
+    for k in range(steps):
+        ctrl.actuation.allocate(60.0 * k, 5.0 if k < steps - off else 0.01, ctrl.actuation.h_model)
+    return ctrl, 60.0 * (steps - 1)
+
+
+def _on_saturated_fallback(orbits: float = 40.0, **learning) -> tuple[Controller, float]:
+    """The same, on the fallback its failed attempt at orbit 6 (s) took."""
+    ctrl, t = _exploring_at_the_limit(orbits, **learning)
+    ctrl.learning.learning_failed(t, "no gain")
+    assert ctrl.phase == "fallback" and ctrl.learning.saturated_fallback
+    return ctrl, t
 
 
 def _fly_off_the_limit(ctrl: Controller, start: float, end: float) -> None:
     for t in np.arange(start, end + 1.0, 60.0):
         ctrl.actuation.allocate(float(t), 0.01, ctrl.actuation.h_model)
+
+
+@pytest.mark.parametrize(("off", "phase"), [(0, "fallback"), (1, "exploring")])
+def test_a_failed_attempt_falls_back_at_once_from_the_saturated_fraction_on(
+    off: int, phase: str
+) -> None:
+    """At saturated_fraction = 1: every step at the limit is enough, one step off is not."""
+    ctrl, t = _exploring_at_the_limit(off=off, saturated_fraction=1.0)
+    log = ctrl.learning.learning_failed(t, "no gain")
+    assert ctrl.phase == phase and ctrl.learning.saturated_fallback is (off == 0)
+    if off == 0:
+        assert "at its limit in 100% of the steps it learned from" in log, log
+        assert ctrl.learning.fallback_at == [t] and ctrl.source == "lqr"
+    else:
+        assert log.endswith("exploring on") and ctrl.next_attempt > t
+
+
+def test_a_failed_re_learning_does_not_take_the_saturated_fallback() -> None:
+    ctrl, t = _exploring_at_the_limit()
+    phases = ctrl.phases
+    phases.move(Phase.LEARNED, Gains(ctrl.K, ctrl.L, "model-fit"))
+    before = Relearning(ctrl.K, ctrl.L, ctrl.exosystem, 0.0, None, (20, 20), 0.0, ctrl.orbit)
+    phases.move(Phase.RELEARNING, Gains(ctrl.K, ctrl.L, "initial"), Schedule(0.0, t), before)
+    log = ctrl.learning.learning_failed(t, "no gain")
+    assert ctrl.phase == "relearning" and before.failures == 1 and not ctrl.learning.fallback_at
+    assert log.endswith("exploring on")
 
 
 def test_the_fallback_explores_on_its_own_gains_once_off_the_limit_for_an_orbit() -> None:
@@ -91,21 +128,73 @@ def test_the_fallback_explores_on_its_own_gains_once_off_the_limit_for_an_orbit(
     t = t0 + 60.0 * round(1.5 * orbit / 60.0)
     _fly_off_the_limit(ctrl, t0 + 60.0, t)
     assert ctrl.actuation.steps[-1][0] == t
+    ctrl.actuation.at_limit[:] = [False] * len(ctrl.actuation.at_limit)
     assert ctrl.learning.resume_on_fallback(t0 + 0.5 * orbit) is None  # an orbit after, not before
     ctrl.actuation.at_limit[-10] = True  # a step at the limit in the last orbit
     assert ctrl.learning.resume_on_fallback(t) is None
     ctrl.actuation.at_limit[-10] = False
     explored = ctrl.learner.store
     ctrl.watch.record(60.0, np.zeros(4), 0.2, np.zeros(ctrl.exosystem[1].shape[0]))  # K0's
-    log = ctrl.learning.resume_on_fallback(t)
+    v = np.array([1.0, 1.0, 0.0, 1.0, 0.0])
+    log = ctrl.tick(t, np.zeros(4), v, ctrl.actuation.h_model)
     assert log is not None and "exploring on the fallback" in log
     assert ctrl.phase == "exploring-on-fallback" and ctrl.exploring
     assert ctrl.phases.gains is fallback and ctrl.source == "lqr"
-    assert ctrl.phases.schedule.next_attempt == pytest.approx(t + 3.0 * orbit)
-    assert ctrl.learning.resume_until == pytest.approx(40.0 * orbit - 3.0 * orbit)
+    assert ctrl.collect_from == ctrl.actuation.first_acting_step(t)
+    assert ctrl.next_attempt == pytest.approx(t + 3.0 * orbit)
+    assert ctrl.learning.resume_until == pytest.approx(duration(ctrl.dep) - 3.0 * orbit)
     assert ctrl.learner.store is not explored  # the data from K0's exploration are not kept
     assert not ctrl.watch.samples  # nor are its samples, for the change detector
     assert ctrl.learning.resumed_at == [t]
+
+
+def test_a_failed_attempt_on_the_fallback_retries_while_a_gain_would_fly_then_falls_back() -> None:
+    ctrl, t0 = _on_saturated_fallback()
+    orbit, cycle = ctrl.orbit, ctrl.learning
+    t = t0 + 60.0 * round(1.5 * orbit / 60.0)
+    _fly_off_the_limit(ctrl, t0 + 60.0, t)
+    assert cycle.resume_on_fallback(t) is not None
+    first = ctrl.next_attempt
+    log = cycle.learning_failed(first, "no gain")
+    assert log.endswith("exploring on the fallback") and ctrl.phase == "exploring-on-fallback"
+    assert ctrl.next_attempt == pytest.approx(first + 0.5 * orbit)  # retry_orbits
+    last = cycle.resume_until - 0.25 * orbit  # its retry would come past resume_until
+    log = cycle.learning_failed(last, "no gain")
+    assert "no gain validated on the fallback" in log and ctrl.phase == "fallback"
+    assert cycle.fallback_at == [t0, last]
+
+
+def test_the_fallback_explores_once_only() -> None:
+    """A retry past the end (retry_orbits = 30) falls back at the first failed attempt, with
+    time left to explore again: it does not."""
+    ctrl, t0 = _on_saturated_fallback(retry_orbits=30.0)
+    orbit, cycle = ctrl.orbit, ctrl.learning
+    t = t0 + 60.0 * round(1.5 * orbit / 60.0)
+    _fly_off_the_limit(ctrl, t0 + 60.0, t)
+    assert cycle.resume_on_fallback(t) is not None
+    cycle.learning_failed(ctrl.next_attempt, "no gain")
+    assert ctrl.phase == "fallback" and len(cycle.fallback_at) == 2
+    later = cycle.fallback_at[-1] + 2 * orbit
+    _fly_off_the_limit(ctrl, cycle.fallback_at[-1] + 60.0, later)
+    assert later + 6 * orbit <= duration(ctrl.dep)  # time enough, off the limit: only once
+    assert ctrl.actuation.fraction_at_limit(later - orbit, later) == 0.0
+    assert cycle.resume_on_fallback(later) is None and ctrl.phase == "fallback"
+
+
+@pytest.mark.parametrize(("on_fallback", "tolerance"), [(False, 0.15), (True, 0.4)])
+def test_an_attempt_on_the_fallback_takes_its_own_tolerance(
+    monkeypatch: pytest.MonkeyPatch, on_fallback: bool, tolerance: float
+) -> None:
+    ctrl = Controller(_realistic(40.0, resume_fit_tolerance=0.4), "fit")
+    taken: list[float] = []
+
+    def fit_attempt(data, lrn, problem, exosystem, translation, tol, holdout):
+        taken.append(tol)
+        return None, {"rank": 1, "needed": 2}, "refused"
+
+    monkeypatch.setattr(learners, "fit_attempt", fit_attempt)
+    attempt = ctrl.learner.learn(None, ctrl.exosystem, 6 * ctrl.orbit, on_fallback)
+    assert taken == [tolerance] and attempt.refused == "did not converge (refused)"
 
 
 @pytest.mark.parametrize(

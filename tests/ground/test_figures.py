@@ -23,7 +23,7 @@ from matplotlib.patches import Rectangle
 from ddvi_core.constants import MU_EARTH
 from services.config import load_deployment
 from services.ground.analysis.figure_canvas import COMMANDS, FIGURES, GAINS, TRUE_STATE
-from services.ground.analysis.figures import ENDGAME_SHARE, draw_figures
+from services.ground.analysis.figures import ENDGAME_SHARE, draw_figures, exploring_spans
 from services.ground.analysis.gain_figure import K_NAMES, K_UNITS, L_NAMES
 from services.ground.analysis.report import deputy_series
 from services.ground.analysis.rundata import GainRecord, RunData, StatusRecord
@@ -336,3 +336,18 @@ def test_the_figures_of_a_short_run_from_its_report_data(tmp_path: Path) -> None
     assert legend_texts(whole) == ["lqr", learner, "slot", "chief"]
     final = summary["deputies"]["lqr"]["final_along_track_error_m"]
     assert abs(labelled(last, "lqr").get_xdata()[-1]) == pytest.approx(final, rel=1e-9)
+
+
+def test_the_exploring_spans_are_those_of_gains_not_converged_on_k0_or_on_the_fallback() -> None:
+    """K0 from 0 to its fallback at 100 s, the fallback explored on from 200 s, a gain learned
+    at 300 s: two spans, whatever the gains' source."""
+    K, L = [[0.0] * 4], [[0.0] * 5]
+    gains = [
+        GainRecord(0.0, K, L, "initial", 0, False),
+        GainRecord(60.0, K, L, "initial", 0, False),
+        GainRecord(100.0, K, L, "lqr", 0, True),
+        GainRecord(200.0, K, L, "lqr", 0, False),
+        GainRecord(300.0, K, L, "model-fit", 0, True),
+        GainRecord(400.0, K, L, "lqr", 0, False),
+    ]
+    assert exploring_spans(gains, 500.0) == [(0.0, 100.0), (200.0, 300.0), (400.0, 500.0)]

@@ -48,8 +48,6 @@ NEAR_SLOT_M = 1_000.0
 """How far from its slot (m, along-track or radial) a deputy may be in the end game or the last
 orbit and still set the scale of their views: one farther is drawn beyond the view and named in
 it, and does not hide the others' metres."""
-EXPLORING_SOURCE = "initial"
-"""The source of the gains a controller flies while it explores (K0)."""
 
 
 def line_figure(
@@ -207,13 +205,14 @@ def plot_trajectories(canvas: Canvas, ax: Axes, since: float, deputies: Collecti
 
 
 def exploring_spans(gains: list[GainRecord], end: float) -> list[tuple[float, float]]:
-    """The times (s) a controller explored, each (from, to): while it flew K0, the gains of
-    the exploring phases (source "initial": services.flight.phases.SOURCES), which it sends
-    every step it explores; a span still open at the last record ends at ``end``."""
+    """The times (s) a controller explored, each (from, to): while the gains it flew were not
+    converged, those of the exploring phases (K0, or the fallback's gains explored on:
+    services.flight.phases.EXPLORING_PHASES), which it sends every step it explores; a span
+    still open at the last record ends at ``end``."""
     spans: list[tuple[float, float]] = []
     start: float | None = None
     for r in gains:
-        exploring = r.source == EXPLORING_SOURCE
+        exploring = not r.converged
         if exploring and start is None:
             start = r.t
         elif not exploring and start is not None:
