@@ -179,7 +179,10 @@ SCHEMAS: Mapping[str, Schema] = _schemas(
                 "iteration or by the model fit, or restored",
             ),
             "iteration": Int(unit="count", doc="value-iteration steps that produced them"),
-            "converged": Bool(doc="value iteration converged (true for LQR gains)"),
+            "converged": Bool(
+                doc="the gains are flown without exploration: LQR, learned or fallback gains "
+                "(false while the controller explores, on K0 or on its fallback)"
+            ),
         },
         "the gains (K, L) a deputy's controller flies",
     ),
