@@ -173,10 +173,12 @@ class ModelFitLearner(Learner):
         the alternative; the gain still passes the hold-out validation before it flies)."""
         lrn = self.lrn
         deadline = lrn.fit_deadline_orbits * self.orbit
-        late = lrn.fit_deadline_orbits > 0 and due >= deadline - 1e-6
-        tolerance = lrn.fit_deadline_tolerance if late else lrn.fit_tolerance
         if on_fallback:
             tolerance = lrn.resume_fit_tolerance
+        elif lrn.fit_deadline_orbits > 0 and due >= deadline - 1e-6:
+            tolerance = lrn.fit_deadline_tolerance
+        else:
+            tolerance = lrn.fit_tolerance
         holdout = lrn.validation_orbits * self.orbit
         r, info, why = fit_attempt(
             data, lrn, self.problem, exosystem, self.translation, tolerance, holdout

@@ -6,7 +6,6 @@ holds (``services.flight.phases``)."""
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -65,7 +64,6 @@ class LearningCycle:
         self.fallback_at: list[float] = []  # when it took to the LQR fallback (s)
         self.saturated_fallback = False  # the fallback was taken on saturated data
         self.resumed_at: list[float] = []  # when it explored on the fallback (s)
-        self.resume_until = math.inf  # the last attempt on the fallback (s)
 
     def rejoin(self, t: float) -> str:
         """Restarted into a running mission, flying from step t on: nothing of the previous
@@ -213,6 +211,12 @@ class LearningCycle:
         self.phases.reschedule(next_attempt=retry)
         return f"{why}, exploring on"
 
+    @property
+    def resume_until(self) -> float:
+        """The last attempt on the fallback (s): a gain learned later would fly less than
+        ``resume_window_orbits`` before the end."""
+        return self.end - self.deputy.learning.resume_window_orbits * self.orbit
+
     def resume_on_fallback(self, t: float) -> str | None:
         """At step t on a fallback taken on saturated data: once its command has been off the
         attitude limit for an orbit (on station, where the data can vary) and twice
@@ -237,7 +241,6 @@ class LearningCycle:
         self.learner.store = self.learner.new_store(self.exostate.exosystem[1].shape[0])
         self.watch.disarm()  # nor does the detector's predictor fit K0's samples
         self.resumed_at.append(t)
-        self.resume_until = self.end - window
         return (
             f"the fallback's attitude has been off its limit for an orbit: exploring on the "
             f"fallback from t = {t:.0f} s, data from t = {collect_from:.0f} s, learning at "
